@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# One-step set-up: a virtualenv in .venv with ocpipe and its pinned dependencies, plus a CPU Vulkan
+# driver (Mesa lavapipe >= 24.3) when the machine has no Vulkan device. Safe to run again.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-python3}
+VENV=${VENV:-.venv}
+
+have_vulkan_device() {
+    # A GPU machine (NVIDIA driver ICD) or a Mesa new enough for SAPIEN: leave it alone.
+    if command -v nvidia-smi >/dev/null 2>&1 && nvidia-smi -L >/dev/null 2>&1; then return 0; fi
+    local icd
+    for icd in /usr/share/vulkan/icd.d/*.json /etc/vulkan/icd.d/*.json; do
+        [ -e "$icd" ] || continue
+        case "$icd" in *lvp*) ;; *) return 0 ;; esac
+    done
+    local v
+    v=$(dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null || true)
+    [ -n "$v" ] && dpkg --compare-versions "$v" ge 24.3
+}
+
+install_lavapipe() {
+    if ! command -v apt-get >/dev/null 2>&1 || ! grep -qs bookworm /etc/os-release; then
+        echo "ocpipe setup: no Vulkan device found and this is not Debian 12." >&2
+        echo "  Install Mesa >= 24.3 with its lavapipe Vulkan driver (or a GPU driver) yourself; see README 'Rendering'." >&2
+        return 0
+    fi
+    local sudo=""
+    [ "$(id -u)" -eq 0 ] || sudo="sudo"
+    echo "ocpipe setup: installing Mesa lavapipe from bookworm-backports (Debian 12's Mesa 22.3 cannot render for SAPIEN)"
+    if ! grep -rqs bookworm-backports /etc/apt/sources.list /etc/apt/sources.list.d/; then
+        echo "deb http://deb.debian.org/debian bookworm-backports main" | $sudo tee /etc/apt/sources.list.d/ocpipe-backports.list >/dev/null
+    fi
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq -t bookworm-backports mesa-vulkan-drivers libvulkan1 >/dev/null
+}
+
+if [ "${OCPIPE_SKIP_VULKAN:-0}" != 1 ] && ! have_vulkan_device; then install_lavapipe; fi
+
+if [ ! -x "$VENV/bin/python" ]; then "$PY" -m venv "$VENV"; fi
+stamp="$VENV/.ocpipe-installed"
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+    "$VENV/bin/pip" install -q --upgrade pip
+    "$VENV/bin/pip" install -q "torch==2.13.0"
+    "$VENV/bin/pip" install -q -e ".[test]"
+    touch "$stamp"
+fi
+echo "ocpipe setup: done ($VENV)"

@@ -1,0 +1,107 @@
+"""Loading and validating the pipeline configuration (one YAML profile plus optional overrides)."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import yaml
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
+
+
+class ConfigError(ValueError):
+    """A configuration value is missing or not allowed; the message names the key."""
+
+
+def deep_merge(base: dict, override: dict) -> dict:
+    """Recursively merge ``override`` into a copy of ``base`` (the way Snakemake merges --configfile)."""
+    out = copy.deepcopy(base)
+    for key, value in override.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = deep_merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def load(*paths: str | Path, schema_path: str | Path = SCHEMA_PATH) -> dict:
+    """Load one or more YAML files (later ones override earlier ones) and validate the result."""
+    config: dict = {}
+    for path in paths:
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"config file not found: {path}")
+        with path.open() as fh:
+            config = deep_merge(config, yaml.safe_load(fh) or {})
+    validate(config, schema_path)
+    return config
+
+
+def _key_path(error: jsonschema.ValidationError) -> str:
+    return ".".join(str(p) for p in error.absolute_path) or "<top level>"
+
+
+def _allowed(error: jsonschema.ValidationError) -> str:
+    schema = error.schema if isinstance(error.schema, dict) else {}
+    if "enum" in schema:
+        return "one of " + ", ".join(repr(v) for v in schema["enum"])
+    if "const" in schema:
+        return f"exactly {schema['const']!r}"
+    parts = []
+    if "type" in schema:
+        parts.append(str(schema["type"]))
+    for word, sym in (("minimum", ">="), ("exclusiveMinimum", ">"), ("maximum", "<="), ("exclusiveMaximum", "<")):
+        if word in schema:
+            parts.append(f"{sym} {schema[word]}")
+    return " ".join(parts)
+
+
+def validate(config: dict, schema_path: str | Path = SCHEMA_PATH) -> None:
+    """Raise ConfigError naming every offending key, what it holds and what is allowed."""
+    with Path(schema_path).open() as fh:
+        schema = yaml.safe_load(fh)
+    validator = jsonschema.Draft202012Validator(schema)
+    errors = sorted(validator.iter_errors(config), key=lambda e: list(map(str, e.absolute_path)))
+    problems = []
+    for err in errors:
+        # Report the most specific sub-error of a oneOf/anyOf failure rather than the umbrella message.
+        leaf = min(err.context, key=lambda e: len(e.schema_path)) if err.context else err
+        allowed = _allowed(leaf)
+        problems.append(f"  {_key_path(err)}: {leaf.message}" + (f" (allowed: {allowed})" if allowed else ""))
+    problems.extend(_cross_field_problems(config) if not problems else [])
+    if problems:
+        raise ConfigError("invalid configuration:\n" + "\n".join(problems))
+
+
+def demo_seed_range(config: dict) -> range:
+    """Every seed the demo generator may try: disjoint per-shard ranges, consecutive from demos.seed_start."""
+    d = config["demos"]
+    return range(d["seed_start"], d["seed_start"] + d["num_demos"] * d["attempts_per_demo"])
+
+
+def _cross_field_problems(config: dict) -> list[str]:
+    problems = []
+    seeds = demo_seed_range(config)
+    pool_start = config["evaluation"]["seed_pool_start"]
+    pool = range(pool_start, pool_start + config["evaluation"]["seed_pool_size"])
+    if seeds.start < pool.stop and pool.start < seeds.stop:
+        problems.append(
+            f"  demos.seed_start: demo seeds {seeds.start}..{seeds.stop - 1} (num_demos x attempts_per_demo) overlap the "
+            f"held-out evaluation pool {pool.start}..{pool.stop - 1} (evaluation.seed_pool_start); move one of them"
+        )
+    if config["demos"]["shards"] > config["demos"]["num_demos"]:
+        problems.append(f"  demos.shards: {config['demos']['shards']} shards for {config['demos']['num_demos']} demos; "
+                        "use at most one shard per demo")
+    if config["cameras"]["near"] >= config["cameras"]["far"]:
+        problems.append("  cameras.near: must be smaller than cameras.far")
+    if config["demos"]["source"] == "import":
+        for task in config["tasks"]:
+            paths = config["demos"].get("import", {}).get(task, {})
+            for kind in ("h5", "json"):
+                if not paths.get(kind):
+                    problems.append(f"  demos.import.{task}.{kind}: required when demos.source is 'import'")
+    return problems

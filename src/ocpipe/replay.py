@@ -1,0 +1,116 @@
+"""Replaying expert demos with env-state alignment and rendering the study's cameras at every step.
+
+Each step t sets the recorded state s_t, renders the cameras and reads the labels, then applies action a_t from
+that state. Nothing stops at ManiSkill's 50-step limit (the env has no TimeLimit), and because every step starts
+from the recorded state, open-loop drift cannot accumulate. Replay success is the task's success flag after the
+last action, as in ManiSkill's own replay tool."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+import torch
+
+from . import projection, sim
+from .demos import episodes
+
+
+@dataclass
+class EpisodeFrames:
+    episode_id: int
+    seed: int
+    success: bool
+    max_state_error: float  # largest |simulated s_{t+1} - recorded s_{t+1}| over the episode (diagnostic)
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def _read_group(group: h5py.Group) -> dict:
+    return {k: _read_group(v) if isinstance(v, h5py.Group) else v[()] for k, v in group.items()}
+
+
+def _index_state(states: dict, t: int) -> dict:
+    return {k: _index_state(v, t) if isinstance(v, dict) else torch.from_numpy(v[t : t + 1]) for k, v in states.items()}
+
+
+def _flat_state(states: dict, t: int) -> np.ndarray:
+    return np.concatenate([
+        _flat_state(v, t) if isinstance(v, dict) else v[t].ravel() for _, v in sorted(states.items())
+    ])
+
+
+def _flat_current(env, like: dict) -> np.ndarray:
+    cur = env.unwrapped.get_state_dict()
+
+    def walk(c, ref):
+        return np.concatenate([
+            walk(c[k], ref[k]) if isinstance(ref[k], dict) else c[k][0].cpu().numpy().ravel() for k in sorted(ref)
+        ])
+
+    return walk(cur, like)
+
+
+class Replayer:
+    """Owns one rendering environment (physx_cpu allows one per process) for a (task, camera set, resolution)."""
+
+    def __init__(self, task: str, config: dict, camera_set: str, resolution: int):
+        self.task, self.camera_set, self.resolution = task, camera_set, resolution
+        self.cameras = list(sim.CAMERA_SETS[camera_set])
+        self.uids = [sim.SIM_CAMERA_UID[c] for c in self.cameras]
+        self.env = sim.make_env(task, config, camera_set, resolution, obs_mode="rgb")
+        approx = config["camera_approx"]
+        # Cameras without a hand-entered model (the moving hand camera) have no approx goal: NaN, not a guess.
+        self.approx_K = np.stack([
+            projection.intrinsic_from_fov(resolution, approx[c]["fov_deg"]) if c in approx else np.full((3, 3), np.nan)
+            for c in self.cameras])
+        self.approx_E = np.stack([
+            projection.extrinsic_look_at(approx[c]["eye"], approx[c]["target"]) if c in approx else np.full((3, 4), np.nan)
+            for c in self.cameras])
+
+    def close(self) -> None:
+        self.env.close()
+
+    def replay(self, h5: h5py.File, episode: dict) -> EpisodeFrames:
+        u = self.env.unwrapped
+        key = f"traj_{episode['episode_id']}"
+        if key not in h5:
+            raise KeyError(f"episode {episode['episode_id']}: {key} missing from {h5.filename}")
+        actions = h5[key]["actions"][()]
+        states = _read_group(h5[key]["env_states"])
+        reset_kwargs = dict(episode.get("reset_kwargs") or {})
+        reset_kwargs["seed"] = episode["episode_seed"]
+        self.env.reset(**reset_kwargs)
+        rows: dict[str, list] = {k: [] for k in ("rgb", "qpos", "tcp_pos", "obj_pos", "goal_pos", "is_grasped",
+                                                 "cam_intrinsic", "cam_extrinsic")}
+        max_err, info = 0.0, {}
+        for t, action in enumerate(actions):
+            u.set_state_dict(_index_state(states, t))
+            sensors = u._get_obs_sensor_data()
+            params = u.get_sensor_params()
+            rows["rgb"].append(np.stack([sensors[uid]["rgb"][0].cpu().numpy() for uid in self.uids]))
+            rows["cam_intrinsic"].append(np.stack([params[uid]["intrinsic_cv"][0].cpu().numpy() for uid in self.uids]))
+            rows["cam_extrinsic"].append(np.stack([params[uid]["extrinsic_cv"][0].cpu().numpy() for uid in self.uids]))
+            for k, v in sim.task_readouts(self.env).items():
+                rows[k].append(v)
+            # step the physics without rendering an observation we would throw away
+            u._step_action(torch.as_tensor(action[None], dtype=torch.float32))
+            u._elapsed_steps += 1
+            info = u.get_info()
+            max_err = max(max_err, float(np.abs(_flat_current(self.env, states) - _flat_state(states, t + 1)).max()))
+        arrays = {k: np.asarray(v) for k, v in rows.items()}
+        arrays["action"] = actions.astype(np.float32)
+        arrays["goal2d_exact"] = projection.goal2d(arrays["goal_pos"], arrays["cam_intrinsic"],
+                                                   arrays["cam_extrinsic"], self.resolution).astype(np.float32)
+        arrays["goal2d_approx"] = projection.goal2d(arrays["goal_pos"], self.approx_K, self.approx_E,
+                                                    self.resolution).astype(np.float32)
+        success = bool(info.get("success", torch.tensor([False]))[0].item())
+        return EpisodeFrames(int(episode["episode_id"]), int(episode["episode_seed"]), success, max_err, arrays)
+
+
+def select_episodes(json_path: str | Path, shard: int, n_shards: int) -> list[dict]:
+    """Contiguous block ``shard`` of ``n_shards`` over the demo set's episodes in numeric id order."""
+    eps = episodes(json_path)
+    bounds = np.linspace(0, len(eps), n_shards + 1).round().astype(int)
+    return eps[bounds[shard] : bounds[shard + 1]]

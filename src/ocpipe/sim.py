@@ -1,0 +1,121 @@
+"""ManiSkill environments with the study's cameras (SPEC section 3) and task-specific readouts."""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+TASKS = ("PickCube-v1", "StackCube-v1")
+CAMERA_SETS = {"dual": ("base", "side"), "native": ("base", "hand")}
+# ManiSkill's uid for each of our camera names.
+SIM_CAMERA_UID = {"base": "base_camera", "side": "side_camera", "hand": "hand_camera"}
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    name: str
+    eye: tuple[float, float, float]
+    target: tuple[float, float, float]
+    fov_deg: float
+
+
+def camera_specs(config: dict, camera_set: str) -> list[CameraSpec]:
+    """Fixed cameras of a camera set from config (the hand camera is the robot's own and has no spec)."""
+    if camera_set not in CAMERA_SETS:
+        raise ValueError(f"unknown camera set {camera_set!r}; known: {', '.join(CAMERA_SETS)}")
+    cams = config["cameras"]
+    return [
+        CameraSpec(name, tuple(cams[name]["eye"]), tuple(cams[name]["target"]), float(cams[name]["fov_deg"]))
+        for name in CAMERA_SETS[camera_set]
+        if name != "hand"
+    ]
+
+
+@functools.cache
+def _env_class(task: str):
+    import mani_skill.envs  # noqa: F401  (registers the tasks)
+    from mani_skill.envs.tasks import PickCubeEnv, StackCubeEnv
+
+    base = {"PickCube-v1": PickCubeEnv, "StackCube-v1": StackCubeEnv}[task]
+
+    class StudyEnv(base):
+        """The task with the study's fixed cameras, an optional visible goal marker and a chosen sensor set."""
+
+        def __init__(self, *args, study_cameras=(), keep_sensors=None, goal_visible=False, near=0.01, far=100.0,
+                     resolution=128, **kwargs):
+            self._study_cameras = tuple(study_cameras)
+            self._keep_sensors = None if keep_sensors is None else set(keep_sensors)
+            self._goal_visible = goal_visible
+            self._near, self._far, self._resolution = near, far, resolution
+            super().__init__(*args, **kwargs)
+
+        @property
+        def _default_sensor_configs(self):
+            from mani_skill.sensors.camera import CameraConfig
+            from mani_skill.utils import sapien_utils
+
+            return [
+                CameraConfig(SIM_CAMERA_UID[c.name], sapien_utils.look_at(eye=c.eye, target=c.target),
+                             self._resolution, self._resolution, np.deg2rad(c.fov_deg), self._near, self._far)
+                for c in self._study_cameras
+            ]
+
+        def _setup_sensors(self, options):
+            super()._setup_sensors(options)
+            if self._keep_sensors is not None:
+                # scene.sensors is this same dict, so dropping entries here also stops them being rendered
+                for uid in list(self._sensors):
+                    if uid not in self._keep_sensors:
+                        del self._sensors[uid]
+                        del self._sensor_configs[uid]
+
+        def _load_scene(self, options):
+            super()._load_scene(options)
+            if self._goal_visible and task == "PickCube-v1" and self.goal_site in self._hidden_objects:
+                self._hidden_objects.remove(self.goal_site)
+
+    StudyEnv.__name__ = StudyEnv.__qualname__ = f"Study{base.__name__}"
+    return StudyEnv
+
+
+def make_env(task: str, config: dict, camera_set: str | None = None, resolution: int = 128, obs_mode: str = "rgb"):
+    """A single physx_cpu environment of ``task`` with the cameras of ``camera_set`` rendered at ``resolution``.
+
+    ``camera_set=None`` renders no cameras (demo generation). No TimeLimit wrapper: callers enforce
+    ``sim.episode_cap`` themselves, so the registered 50-step limit can never truncate an expert."""
+    if task not in TASKS:
+        raise ValueError(f"unknown task {task!r}; known: {', '.join(TASKS)}")
+    sim = config["sim"]
+    cams = camera_specs(config, camera_set) if camera_set else []
+    keep = [SIM_CAMERA_UID[n] for n in CAMERA_SETS[camera_set]] if camera_set else []
+    sensor_overrides = {"shader_pack": sim["shader"]}
+    if camera_set and "hand" in CAMERA_SETS[camera_set]:
+        sensor_overrides["hand_camera"] = {"width": resolution, "height": resolution}
+    cls = _env_class(task)
+    return cls(
+        study_cameras=cams, keep_sensors=keep, goal_visible=config["frames"]["goal_marker_visible"],
+        near=config["cameras"]["near"], far=config["cameras"]["far"], resolution=resolution,
+        obs_mode=obs_mode if camera_set else "state_dict", control_mode=sim["control_mode"],
+        sim_backend=sim["backend"], num_envs=1, render_mode=None,
+        sensor_configs=sensor_overrides,
+    )
+
+
+def task_readouts(env) -> dict[str, np.ndarray]:
+    """Per-step labels read from the simulator (not from obs, which differ by task and obs mode)."""
+    u = env.unwrapped
+    if isinstance(u, _env_class("PickCube-v1")):
+        obj, goal = u.cube, u.goal_site.pose.p
+    else:
+        obj = u.cubeA
+        goal = u.cubeB.pose.p.clone()
+        goal[..., 2] += 2 * u.cube_half_size[2]  # top centre of cubeB: where cubeA's centre must go
+    return {
+        "qpos": u.agent.robot.get_qpos()[0].cpu().numpy(),
+        "tcp_pos": u.agent.tcp.pose.p[0].cpu().numpy(),
+        "obj_pos": obj.pose.p[0].cpu().numpy(),
+        "goal_pos": goal[0].cpu().numpy(),
+        "is_grasped": bool(u.agent.is_grasping(obj)[0].item()),
+    }

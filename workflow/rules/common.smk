@@ -1,0 +1,26 @@
+# Helpers shared by the rule files: target lists, wildcard constraints and config slices passed as params
+# (so a change in one config section reruns exactly the jobs that read it).
+
+wildcard_constraints:
+    task="PickCube-v1|StackCube-v1",
+    cams="dual|native",
+    res=r"\d+",
+    shard=r"\d+",
+
+
+def cfg(*sections):
+    """The named top-level config sections, as one dict (a rule's params)."""
+    return {s: config[s] for s in sections}
+
+
+def frames_stores():
+    return [
+        f"{task}_{cams}_{res}"
+        for task in config["tasks"]
+        for cams in config["frames"]["camera_sets"].get(task, ["dual"])
+        for res in config["frames"]["resolutions"]
+    ]
+
+
+def frames_targets():
+    return [f"results/frames/{s}{ext}" for s in frames_stores() for ext in (".zarr", ".report.json", ".contact.png")]

@@ -1,0 +1,63 @@
+# Expert demonstrations: motion-planning shards on disjoint seed ranges merged into one ManiSkill h5+json per
+# task, or official demo files imported from paths in config (demos.source).
+
+if config["demos"]["source"] == "motionplanning":
+
+    rule demos_shard:
+        output:
+            h5="results/demos/shards/{task}/shard{shard}.h5",
+            json="results/demos/shards/{task}/shard{shard}.json",
+            report="results/demos/shards/{task}/shard{shard}.report.json",
+        params:
+            cfg=cfg("sim", "demos", "evaluation"),
+        log:
+            "results/logs/demos_shard/{task}_shard{shard}.log",
+        benchmark:
+            "results/benchmarks/demos_shard/{task}_shard{shard}.tsv"
+        threads: 1
+        resources:
+            mem_mb=2000,
+        conda:
+            "../envs/ocpipe.yaml"
+        script:
+            "../scripts/demos_shard.py"
+
+    rule demos_merge:
+        input:
+            h5=expand("results/demos/shards/{{task}}/shard{shard}.h5", shard=range(config["demos"]["shards"])),
+            reports=expand("results/demos/shards/{{task}}/shard{shard}.report.json", shard=range(config["demos"]["shards"])),
+        output:
+            h5="results/demos/{task}.h5",
+            json="results/demos/{task}.json",
+            report="results/demos/{task}.report.json",
+        log:
+            "results/logs/demos_merge/{task}.log",
+        benchmark:
+            "results/benchmarks/demos_merge/{task}.tsv"
+        threads: 1
+        conda:
+            "../envs/ocpipe.yaml"
+        script:
+            "../scripts/demos_merge.py"
+
+else:
+
+    rule demos_import:
+        input:
+            h5=lambda w: config["demos"]["import"][w.task]["h5"],
+            json=lambda w: config["demos"]["import"][w.task]["json"],
+        output:
+            h5="results/demos/{task}.h5",
+            json="results/demos/{task}.json",
+            report="results/demos/{task}.report.json",
+        params:
+            cfg=cfg("sim", "demos", "evaluation"),
+        log:
+            "results/logs/demos_import/{task}.log",
+        benchmark:
+            "results/benchmarks/demos_import/{task}.tsv"
+        threads: 1
+        conda:
+            "../envs/ocpipe.yaml"
+        script:
+            "../scripts/demos_import.py"

@@ -1,0 +1,64 @@
+# Frames: env-state-aligned replay of every demo, rendered natively with the study's cameras, in shards that
+# run as separate jobs, merged into results/frames/{task}_{cams}_{res}.zarr (contract: README.md).
+
+
+rule frames_shard:
+    input:
+        h5="results/demos/{task}.h5",
+        json="results/demos/{task}.json",
+    output:
+        store=temp(directory("results/frames/shards/{task}_{cams}_{res}/shard{shard}.zarr")),
+        stats="results/frames/shards/{task}_{cams}_{res}/shard{shard}.json",
+    params:
+        cfg=cfg("sim", "frames", "cameras", "camera_approx"),
+    log:
+        "results/logs/frames_shard/{task}_{cams}_{res}_shard{shard}.log",
+    benchmark:
+        "results/benchmarks/frames_shard/{task}_{cams}_{res}_shard{shard}.tsv"
+    threads: 1
+    resources:
+        mem_mb=4000,
+    conda:
+        "../envs/ocpipe.yaml"
+    script:
+        "../scripts/frames_shard.py"
+
+
+rule frames_merge:
+    input:
+        stores=expand("results/frames/shards/{{task}}_{{cams}}_{{res}}/shard{shard}.zarr", shard=range(config["frames"]["shards"])),
+    output:
+        store=directory("results/frames/{task}_{cams}_{res}.zarr"),
+    params:
+        chunk_frames=config["frames"]["chunk_frames"],
+    log:
+        "results/logs/frames_merge/{task}_{cams}_{res}.log",
+    benchmark:
+        "results/benchmarks/frames_merge/{task}_{cams}_{res}.tsv"
+    threads: 1
+    resources:
+        mem_mb=4000,
+    conda:
+        "../envs/ocpipe.yaml"
+    script:
+        "../scripts/frames_merge.py"
+
+
+rule frames_report:
+    input:
+        store="results/frames/{task}_{cams}_{res}.zarr",
+        stats=expand("results/frames/shards/{{task}}_{{cams}}_{{res}}/shard{shard}.json", shard=range(config["frames"]["shards"])),
+    output:
+        json="results/frames/{task}_{cams}_{res}.report.json",
+        png="results/frames/{task}_{cams}_{res}.contact.png",
+    params:
+        report=config["report"],
+    log:
+        "results/logs/frames_report/{task}_{cams}_{res}.log",
+    benchmark:
+        "results/benchmarks/frames_report/{task}_{cams}_{res}.tsv"
+    threads: 1
+    conda:
+        "../envs/ocpipe.yaml"
+    script:
+        "../scripts/frames_report.py"

@@ -1,0 +1,7 @@
+from ocpipe import demos, runlog
+from ocpipe.atomic import write_json
+
+with runlog.to_file(snakemake.log[0]):
+    report = demos.import_official(snakemake.input.h5, snakemake.input.json, snakemake.output.h5,
+                                   snakemake.params.cfg, snakemake.wildcards.task)
+    write_json(snakemake.output.report, report)

@@ -1,0 +1,8 @@
+import json
+from pathlib import Path
+
+from ocpipe import demos, runlog
+
+with runlog.to_file(snakemake.log[0]):
+    reports = [json.loads(Path(p).read_text()) for p in snakemake.input.reports]
+    demos.merge(snakemake.input.h5, snakemake.output.h5, reports, snakemake.output.report)
