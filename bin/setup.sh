@@ -40,9 +40,10 @@ if [ "${OCPIPE_SKIP_VULKAN:-0}" != 1 ] && ! have_vulkan_device; then install_lav
 if [ ! -x "$VENV/bin/python" ]; then "$PY" -m venv "$VENV"; fi
 stamp="$VENV/.ocpipe-installed"
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
-    "$VENV/bin/pip" install -q --upgrade pip
-    "$VENV/bin/pip" install -q "torch==2.13.0"
-    "$VENV/bin/pip" install -q -e ".[test]"
+    pip_install() { "$VENV/bin/pip" install -q --disable-pip-version-check "$@" 2> >(grep -v "is ignored: it is neither" >&2); }
+    # torch first and pinned: an unpinned resolve would pull a multi-GB CUDA build on CPU-only machines
+    pip_install "torch==2.13.0"
+    pip_install -e ".[test]"
     touch "$stamp"
 fi
 echo "ocpipe setup: done ($VENV)"

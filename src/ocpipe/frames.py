@@ -48,6 +48,7 @@ def render_shard(task: str, camera_set: str, resolution: int, demo_h5: str | Pat
             "episode_seeds": [int(e["episode_seed"]) for e in eps], "episode_ids": [int(e["episode_id"]) for e in eps],
             "episode_offsets": offsets, "replay_success_rate": 1.0, "goal_marker_visible":
             config["frames"]["goal_marker_visible"], "shader": config["sim"]["shader"],
-            "max_replay_state_error": state_err, "render_seconds": seconds,
+            "max_replay_state_error": state_err,
+            "segmentation_ids": {str(k): v for k, v in replayer.segmentation_ids.items()}, "render_seconds": seconds,
         })
     return {"frames": offsets[-1], "episodes": len(eps), "seconds": seconds, "frames_per_s": offsets[-1] / seconds}

@@ -15,6 +15,7 @@ warnings.filterwarnings("ignore", message=".*numcodecs.*", category=UserWarning)
 # name -> (per-frame shape given C cameras and resolution R, dtype)
 PER_FRAME = {
     "rgb": (lambda C, R: (C, R, R, 3), "uint8"),
+    "seg": (lambda C, R: (C, R, R), "uint16"),
     "qpos": (lambda C, R: (9,), "float32"),
     "action": (lambda C, R: (8,), "float32"),
     "goal_pos": (lambda C, R: (3,), "float32"),
@@ -29,7 +30,7 @@ RGB_CHUNK_BYTES = 64 * 2**20  # keep one rgb chunk (the unit read into RAM) arou
 
 
 def _chunk_len(name: str, C: int, R: int, chunk_frames: int) -> int:
-    if name != "rgb":
+    if name not in ("rgb", "seg"):
         return chunk_frames
     return max(1, min(chunk_frames, RGB_CHUNK_BYTES // (C * R * R * 3)))
 

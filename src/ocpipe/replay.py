@@ -59,7 +59,9 @@ class Replayer:
         self.task, self.camera_set, self.resolution = task, camera_set, resolution
         self.cameras = list(sim.CAMERA_SETS[camera_set])
         self.uids = [sim.SIM_CAMERA_UID[c] for c in self.cameras]
-        self.env = sim.make_env(task, config, camera_set, resolution, obs_mode="rgb")
+        # segmentation rides along in the same render pass; the encoder stage scores slot masks against it
+        self.env = sim.make_env(task, config, camera_set, resolution, obs_mode="rgb+segmentation")
+        self.segmentation_ids = {int(i): obj.name for i, obj in self.env.unwrapped.segmentation_id_map.items()}
         approx = config["camera_approx"]
         # Cameras without a hand-entered model (the moving hand camera) have no approx goal: NaN, not a guess.
         self.approx_K = np.stack([
@@ -82,7 +84,7 @@ class Replayer:
         reset_kwargs = dict(episode.get("reset_kwargs") or {})
         reset_kwargs["seed"] = episode["episode_seed"]
         self.env.reset(**reset_kwargs)
-        rows: dict[str, list] = {k: [] for k in ("rgb", "qpos", "tcp_pos", "obj_pos", "goal_pos", "is_grasped",
+        rows: dict[str, list] = {k: [] for k in ("rgb", "seg", "qpos", "tcp_pos", "obj_pos", "goal_pos", "is_grasped",
                                                  "cam_intrinsic", "cam_extrinsic")}
         max_err, info = 0.0, {}
         for t, action in enumerate(actions):
@@ -90,6 +92,7 @@ class Replayer:
             sensors = u._get_obs_sensor_data()
             params = u.get_sensor_params()
             rows["rgb"].append(np.stack([sensors[uid]["rgb"][0].cpu().numpy() for uid in self.uids]))
+            rows["seg"].append(np.stack([sensors[uid]["segmentation"][0, ..., 0].cpu().numpy() for uid in self.uids]))
             rows["cam_intrinsic"].append(np.stack([params[uid]["intrinsic_cv"][0].cpu().numpy() for uid in self.uids]))
             rows["cam_extrinsic"].append(np.stack([params[uid]["extrinsic_cv"][0].cpu().numpy() for uid in self.uids]))
             for k, v in sim.task_readouts(self.env).items():

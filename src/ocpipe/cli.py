@@ -1,0 +1,41 @@
+"""Command-line helpers around the workflow: `ocpipe check-config`, `ocpipe check-store`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from . import config as cfgmod
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="ocpipe", description=__doc__)
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser("check-config", help="validate config files (later files override earlier ones)")
+    p.add_argument("files", nargs="*", default=["config/config.yaml"])
+    p = sub.add_parser("check-store", help="check a frames store against the contract and print its summary")
+    p.add_argument("store")
+    args = parser.parse_args(argv)
+
+    if args.cmd == "check-config":
+        try:
+            cfgmod.load(*args.files)
+        except cfgmod.ConfigError as err:
+            print(f"ocpipe: {err}", file=sys.stderr)
+            return 1
+        print("ok: " + " + ".join(args.files))
+        return 0
+
+    from . import frames_report, frames_store
+
+    problems = frames_store.check_contract(args.store)
+    for problem in problems:
+        print(f"contract: {problem}", file=sys.stderr)
+    if not problems:
+        print(json.dumps(frames_report.summarize(args.store), indent=2))
+    return 1 if problems else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

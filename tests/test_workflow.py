@@ -1,0 +1,132 @@
+"""Snakemake end to end on a tiny config in a temporary directory: demos -> replay -> frames store -> report."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+
+from conftest import REPO
+from ocpipe import frames, frames_store
+
+SNAKEMAKE = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile")]
+TINY = {
+    "tasks": ["PickCube-v1", "StackCube-v1"],
+    "demos": {"num_demos": 2, "shards": 1},
+    "frames": {"resolutions": [64], "shards": 2, "chunk_frames": 50,
+               "camera_sets": {"PickCube-v1": ["dual"], "StackCube-v1": ["native"]}},
+    "report": {"contact_sheet_episodes": 2, "contact_sheet_steps": 3},
+}
+
+
+def snakemake(workdir, *args, check=True):
+    proc = subprocess.run([*SNAKEMAKE, "--directory", str(workdir), *args], capture_output=True, text=True)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"snakemake {' '.join(args)} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    return proc
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    work = tmp_path_factory.mktemp("tiny")
+    (work / "tiny.yaml").write_text(yaml.safe_dump(TINY))
+    snakemake(work, "--configfile", "tiny.yaml", "--cores", "2")
+    return work
+
+
+def test_dry_run_lists_the_dag_on_the_default_config(tmp_path):
+    out = snakemake(tmp_path, "-n", "--cores", "2").stdout
+    for rule in ("demos_shard", "demos_merge", "frames_shard", "frames_merge", "frames_report"):
+        assert rule in out
+    assert "results/frames/PickCube-v1_dual_128.zarr" in out
+
+
+def test_bad_config_stops_the_run_naming_the_key(tmp_path):
+    proc = snakemake(tmp_path, "-n", "--config", "seed=-3", check=False)
+    assert proc.returncode != 0
+    assert "seed: -3 is less than the minimum of 0" in proc.stdout + proc.stderr
+
+
+def test_frames_stores_meet_the_contract(tiny_run):
+    for name, cams in (("PickCube-v1_dual_64", ["base", "side"]), ("StackCube-v1_native_64", ["base", "hand"])):
+        store = tiny_run / "results" / "frames" / f"{name}.zarr"
+        assert frames_store.check_contract(store) == []
+        root = frames_store.open_store(store)
+        attrs = root.attrs.asdict()
+        assert attrs["cameras"] == cams and attrs["resolution"] == 64 and attrs["replay_success_rate"] == 1.0
+        demo_eps = json.loads((tiny_run / "results" / "demos" / f"{attrs['task']}.json").read_text())["episodes"]
+        assert attrs["episode_seeds"] == [e["episode_seed"] for e in sorted(demo_eps, key=lambda e: e["episode_id"])]
+        # expert episodes run past ManiSkill's 50-step default limit, and nothing cut them there
+        assert min(np.diff(attrs["episode_offsets"])) > 50
+        rgb = root["rgb"][:5]
+        assert rgb.shape == (5, 2, 64, 64, 3) and rgb.std() > 10  # real images, not blank buffers
+        report = json.loads((tiny_run / "results" / "frames" / f"{name}.report.json").read_text())
+        assert report["frames"] == root["action"].shape[0] and report["replay_success_rate"] == 1.0
+        assert (tiny_run / "results" / "frames" / f"{name}.contact.png").stat().st_size > 10_000
+
+
+def test_stackcube_native_has_a_moving_hand_camera_and_goal_on_cube_b(tiny_run):
+    root = frames_store.open_store(tiny_run / "results" / "frames" / "StackCube-v1_native_64.zarr")
+    E = root["cam_extrinsic_per_frame"][...]
+    assert np.ptp(E[:, 1], axis=0).max() > 0.05 and np.ptp(E[:, 0], axis=0).max() < 1e-6  # hand moves, base does not
+    # approx goal needs a hand-entered model, which the hand camera cannot have
+    assert np.isnan(root["goal2d_approx"][:, 2:]).all() and np.isfinite(root["goal2d_approx"][:, :2]).all()
+    goal, obj = root["goal_pos"][...], root["obj_pos"][...]
+    last = np.array(root.attrs["episode_offsets"][1:]) - 1
+    # at each successful episode's end, cubeA's centre sits where the goal (cubeB's top centre) says
+    np.testing.assert_allclose(obj[last], goal[last], atol=0.02)
+
+
+def test_projected_goal_lands_on_the_rendered_marker(tiny_run):
+    root = frames_store.open_store(tiny_run / "results" / "frames" / "PickCube-v1_dual_64.zarr")
+    rgb, g = root["rgb"][...].astype(int), root["goal2d_exact"][...] * 64
+    checked = 0
+    for cam in range(2):
+        img = rgb[:, cam]
+        green = (img[..., 1] > 120) & (img[..., 0] < 90) & (img[..., 2] < 90)
+        counts = green.sum(axis=(1, 2))
+        # frames where the marker is fully in view (largest green area, not occluded by the arm)
+        for i in np.flatnonzero(counts >= max(4, counts.max() - 1))[:10]:
+            vs, us = np.nonzero(green[i])
+            centroid = np.array([us.mean() + 0.5, vs.mean() + 0.5])
+            assert np.linalg.norm(centroid - g[i, 2 * cam : 2 * cam + 2]) < 2.0
+            checked += 1
+    assert checked >= 2
+
+
+def test_segmentation_marks_the_cube_and_the_goal_marker(tiny_run):
+    root = frames_store.open_store(tiny_run / "results" / "frames" / "PickCube-v1_dual_64.zarr")
+    ids = {name: int(i) for i, name in root.attrs["segmentation_ids"].items()}
+    seg, rgb = root["seg"][:40], root["rgb"][:40].astype(int)
+    cube = seg == ids["cube"]
+    assert cube.any(axis=(2, 3)).all()  # the cube is in view of both cameras at the start
+    red = (rgb[..., 0] > 120) & (rgb[..., 1] < 80) & (rgb[..., 2] < 80)
+    assert (red & cube).sum() / red.sum() > 0.8  # red pixels are the cube's pixels
+    green = (rgb[..., 1] > 120) & (rgb[..., 0] < 90) & (rgb[..., 2] < 90)
+    assert (green & (seg == ids["goal_site"])).sum() / green.sum() > 0.8
+
+
+def test_rerun_is_a_no_op_and_a_param_change_reruns_only_its_jobs(tiny_run):
+    assert "Nothing to be done" in snakemake(tiny_run, "--configfile", "tiny.yaml", "-n").stdout
+    out = snakemake(tiny_run, "--configfile", "tiny.yaml", "-n", "--config", "report={contact_sheet_episodes: 1, contact_sheet_steps: 3}").stdout
+    assert "frames_report" in out and "frames_shard" not in out and "demos_shard" not in out
+
+
+def test_failed_replay_names_the_episode_and_leaves_no_store(tiny_run, tmp_path, default_config):
+    demo = tmp_path / "PickCube-v1.h5"
+    shutil.copy(tiny_run / "results" / "demos" / "PickCube-v1.h5", demo)
+    shutil.copy(tiny_run / "results" / "demos" / "PickCube-v1.json", demo.with_suffix(".json"))
+    with h5py.File(demo, "a") as f:  # the last command of episode 1 flings the arm away: no success
+        actions = f["traj_1/actions"]
+        actions[-1, :7] = actions[0, :7] + 1.5
+        actions[-1, 7] = -1.0
+    out = tmp_path / "store.zarr"
+    with pytest.raises(frames.ReplayFailure, match=r"episode ids \[1\]"):
+        frames.render_shard("PickCube-v1", "dual", 64, demo, 0, 1, default_config, out, progress=False)
+    assert not out.exists() and not list(tmp_path.glob(".tmp-*"))
