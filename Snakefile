@@ -16,9 +16,12 @@ except ConfigError as err:
 include: "workflow/rules/common.smk"
 include: "workflow/rules/demos.smk"
 include: "workflow/rules/frames.smk"
+include: "workflow/rules/encoders.smk"
+include: "workflow/rules/features.smk"
 
 
 rule all:
     default_target: True
     input:
         frames_targets(),
+        features_targets(),

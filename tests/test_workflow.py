@@ -22,6 +22,9 @@ TINY = {
     "frames": {"resolutions": [64], "shards": 2, "chunk_frames": 50,
                "camera_sets": {"PickCube-v1": ["dual"], "StackCube-v1": ["native"]}},
     "report": {"contact_sheet_episodes": 2, "contact_sheet_steps": 3},
+    "encoders": {"slots_ssl": {"train_stores": ["PickCube-v1_dual_64"], "holdout_episodes": 1, "steps": 30,
+                               "grid": 16, "batch_size": 8, "warmup_steps": 5, "slot_dim": 32, "feature_dim": 32}},
+    "features": {"batch_size": 32, "chunk_frames": 64, "attention_pairs": [[0, 0], [1, 60]]},
 }
 
 
@@ -42,7 +45,8 @@ def tiny_run(tmp_path_factory):
 
 def test_dry_run_lists_the_dag_on_the_default_config(tmp_path):
     out = snakemake(tmp_path, "-n", "--cores", "2").stdout
-    for rule in ("demos_shard", "demos_merge", "frames_shard", "frames_merge", "frames_report"):
+    for rule in ("demos_shard", "demos_merge", "frames_shard", "frames_merge", "frames_report", "train_slots_ssl",
+                 "features", "features_diagnostics", "attention_maps"):
         assert rule in out
     assert "results/frames/PickCube-v1_dual_128.zarr" in out
 
@@ -130,3 +134,43 @@ def test_failed_replay_names_the_episode_and_leaves_no_store(tiny_run, tmp_path,
     with pytest.raises(frames.ReplayFailure, match=r"episode ids \[1\]"):
         frames.render_shard("PickCube-v1", "dual", 64, demo, 0, 1, default_config, out, progress=False)
     assert not out.exists() and not list(tmp_path.glob(".tmp-*"))
+
+
+def test_features_stores_hold_per_frame_tokens_and_masks(tiny_run):
+    from ocpipe.features import open_features, sha256
+
+    res = tiny_run / "results"
+    ckpt = res / "encoders" / "slots_ssl" / "model.pt"
+    for name in ("PickCube-v1_dual_64", "StackCube-v1_native_64"):
+        frames = frames_store.open_store(res / "frames" / f"{name}.zarr")
+        feats = open_features(res / "features" / f"{name}_slots_ssl.zarr")
+        N = frames["action"].shape[0]
+        assert feats["tokens"].shape == (N, 2, 7, 32) and feats["tokens"].dtype == np.float16
+        assert feats["masks"].shape == (N, 2, 7, 16, 16)
+        np.testing.assert_allclose(feats["masks"][:50].astype(np.float32).sum(2), 1.0, atol=5e-3)
+        assert feats.attrs["encoder"] == "slots_ssl" and feats.attrs["checkpoint_sha256"] == sha256(ckpt)
+        assert feats.attrs["frames_store_attrs"]["episode_offsets"] == frames.attrs["episode_offsets"]
+        diag = json.loads((res / "features" / f"{name}_slots_ssl.diagnostics.json").read_text())
+        assert set(diag["mask_diagnostics"]) == set(frames.attrs["cameras"])
+        assert diag["decomposition"]["all"]["fg_ari_images"] > 0
+        assert (res / "figures" / f"attention_{name}_slots_ssl.png").stat().st_size > 10_000
+    held = json.loads((res / "encoders" / "slots_ssl" / "held_out_decomposition.json").read_text())
+    assert held["held_out"]["PickCube-v1_dual_64"]["episodes"] == 1
+    # the PickCube store trained the encoder: its diagnostics score only the held-out episode
+    diag = json.loads((res / "features" / "PickCube-v1_dual_64_slots_ssl.diagnostics.json").read_text())
+    last = frames_store.open_store(res / "frames" / "PickCube-v1_dual_64.zarr").attrs["episode_offsets"]
+    assert diag["decomposition"]["frames"] == last[-1] - last[-2]
+
+
+def test_encoding_is_deterministic(tiny_run, tmp_path):
+    from ocpipe import features
+    from ocpipe.encoders import registry
+
+    res = tiny_run / "results"
+    frames = res / "frames" / "PickCube-v1_dual_64.zarr"
+    enc = registry.build("slots_ssl", {}, frames, res / "encoders" / "slots_ssl" / "model.pt")
+    features.encode_store(enc, frames, tmp_path / "again.zarr", batch_size=32, chunk_frames=64, progress=False)
+    a = features.open_features(tmp_path / "again.zarr")
+    b = features.open_features(res / "features" / "PickCube-v1_dual_64_slots_ssl.zarr")
+    np.testing.assert_array_equal(a["tokens"][...], b["tokens"][...])
+    np.testing.assert_array_equal(a["masks"][...], b["masks"][...])

@@ -4,6 +4,7 @@
 wildcard_constraints:
     task="PickCube-v1|StackCube-v1",
     cams="dual|native",
+    encoder="slots_ssl|spot|dino_cls|dino_grid4|dino_dense",
     res=r"\d+",
     shard=r"\d+",
 
@@ -24,3 +25,13 @@ def frames_stores():
 
 def frames_targets():
     return [f"results/frames/{s}{ext}" for s in frames_stores() for ext in (".zarr", ".report.json", ".contact.png")]
+
+
+def features_targets(encoders=("slots_ssl",)):
+    """Features stores of the default encoder(s), with their diagnostics and attention maps."""
+    out = []
+    for store in frames_stores():
+        for enc in encoders:
+            out += [f"results/features/{store}_{enc}.zarr", f"results/features/{store}_{enc}.diagnostics.json"]
+            out += [f"results/figures/attention_{store}_{enc}.png"] if enc in ("slots_ssl", "spot") else []
+    return out

@@ -1,0 +1,1 @@
+"""Frozen visual encoders: the offline slots_ssl default, SPOT and DINO."""

@@ -1,0 +1,33 @@
+"""Encoder names the workflow knows, and how each is built for one frames store."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..frames_store import open_store
+
+SLOT_ENCODERS = ("slots_ssl", "spot")
+DINO_READOUTS = ("cls", "grid4", "dense")
+ENCODERS = SLOT_ENCODERS + tuple(f"dino_{r}" for r in DINO_READOUTS)
+
+
+def build(name: str, encoders_cfg: dict, frames_path: str | Path, trained_checkpoint: str | Path | None = None):
+    """A frozen encoder for the frames store at ``frames_path``.
+
+    ``trained_checkpoint``: a checkpoint the workflow produced (slots_ssl, or SPOT's slot module trained on DINO);
+    user-given weights come from ``encoders_cfg`` and a missing file names its config key."""
+    if name not in ENCODERS:
+        raise ValueError(f"unknown encoder {name!r}; known: {', '.join(ENCODERS)}")
+    store = open_store(frames_path)
+    if name == "slots_ssl":
+        from .frozen_ssl import FrozenSSLSlots
+
+        if trained_checkpoint is None:
+            raise ValueError("slots_ssl needs its trained checkpoint (results/encoders/slots_ssl/model.pt)")
+        return FrozenSSLSlots(trained_checkpoint, store["cam_intrinsic"][...], store["cam_extrinsic"][...],
+                              store.attrs["resolution"])
+    from .frozen_vit import FrozenDINO, FrozenSPOT
+
+    if name == "spot":
+        return FrozenSPOT.from_config(encoders_cfg["spot"], trained_checkpoint)
+    return FrozenDINO.from_config(encoders_cfg["dino"], name.removeprefix("dino_"))

@@ -1,0 +1,93 @@
+"""The features stage: encode every frame of a frames store with a frozen encoder into a features store.
+
+Features are stored per frame (the thesis stored 5x-duplicated windows); the policy's loader builds windows by
+index. Layout of ``results/features/{task}_{cams}_{res}_{encoder}.zarr``:
+  tokens (N, C, K, D) float16   visual tokens per camera
+  masks  (N, C, K, h, w) float16 slot attention masks (slot encoders only)
+  attrs: encoder, checkpoint_sha256, frames_store, frames_store_attrs (task, cameras, resolution, episode_*),
+         and the encoder's own (slots_ssl: crop_windows, the (x0, y0, size) pixel window each mask covers)."""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+import torch
+import zarr
+from tqdm import tqdm
+
+from .atomic import atomic_path
+from .frames_store import open_store
+
+
+class FrozenEncoder(Protocol):
+    name: str
+    checkpoint: Path | None
+
+    def encode(self, rgb: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """rgb (B, C, H, W, 3) uint8 -> tokens (B, C, K, D), masks (B, C, K, h, w) or None."""
+
+
+def sha256(path: str | Path | None) -> str | None:
+    if path is None:
+        return None
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def encode_store(encoder: FrozenEncoder, frames_path: str | Path, out_path: str | Path, batch_size: int,
+                 chunk_frames: int, threads: int = 1, dtype: str = "float16", progress: bool = True) -> dict:
+    torch.set_num_threads(threads)
+    frames = open_store(frames_path)
+    rgb = frames["rgb"]
+    N = rgb.shape[0]
+    t0 = time.perf_counter()
+    with atomic_path(out_path) as tmp, torch.inference_mode():
+        root = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+        tokens_arr = masks_arr = None
+        bar = tqdm(total=N, desc=f"encode {Path(frames_path).name} [{encoder.name}]", unit="frame", disable=not progress)
+        # read one store chunk at a time (a frames chunk is the unit of I/O), encode it in batches
+        step = rgb.chunks[0] * max(1, batch_size // rgb.chunks[0])
+        for lo in range(0, N, step):
+            block = torch.from_numpy(rgb[lo : lo + step])
+            outs = [encoder.encode(block[i : i + batch_size]) for i in range(0, len(block), batch_size)]
+            tokens = torch.cat([o[0] for o in outs]).numpy().astype(dtype)
+            masks = torch.cat([o[1] for o in outs]).numpy().astype(dtype) if outs[0][1] is not None else None
+            if tokens_arr is None:
+                tokens_arr = root.create_array("tokens", shape=(N, *tokens.shape[1:]), dtype=dtype,
+                                               chunks=(chunk_frames, *tokens.shape[1:]))
+                if masks is not None:
+                    masks_arr = root.create_array("masks", shape=(N, *masks.shape[1:]), dtype=dtype,
+                                                  chunks=(chunk_frames, *masks.shape[1:]))
+            tokens_arr[lo : lo + len(tokens)] = tokens
+            if masks_arr is not None:
+                masks_arr[lo : lo + len(masks)] = masks
+            bar.update(len(block))
+        bar.close()
+        seconds = time.perf_counter() - t0
+        fa = frames.attrs.asdict()
+        root.attrs.update({
+            "encoder": encoder.name,
+            "checkpoint": str(encoder.checkpoint) if encoder.checkpoint else None,
+            "checkpoint_sha256": sha256(encoder.checkpoint),
+            "frames_store": str(frames_path),
+            "frames_store_attrs": {k: fa[k] for k in ("task", "camera_set", "cameras", "resolution", "episode_seeds",
+                                                       "episode_offsets") if k in fa},
+            "encode_seconds": seconds,
+            "frames_per_second": N / seconds,
+            **getattr(encoder, "extra_attrs", {}),
+        })
+    return {"frames": N, "seconds": seconds, "frames_per_second": N / seconds}
+
+
+def open_features(path: str | Path) -> zarr.Group:
+    path = Path(path)
+    if not (path / "zarr.json").is_file():
+        raise FileNotFoundError(f"no features store at {path}")
+    return zarr.open_group(str(path), mode="r", zarr_format=3)

@@ -1,0 +1,49 @@
+# Encoders that the workflow trains itself: the offline `slots_ssl` default (and, with only DINO weights given,
+# SPOT's slot module on top of frozen DINO).
+
+
+rule train_slots_ssl:
+    input:
+        stores=expand("results/frames/{store}.zarr", store=config["encoders"]["slots_ssl"]["train_stores"]),
+    output:
+        ckpt="results/encoders/slots_ssl/model.pt",
+        curve="results/encoders/slots_ssl/train_curve.parquet",
+        eval="results/encoders/slots_ssl/held_out_decomposition.json",
+    params:
+        enc=config["encoders"]["slots_ssl"],
+        seed=config["seed"],
+    log:
+        "results/logs/train_slots_ssl.log",
+    benchmark:
+        "results/benchmarks/train_slots_ssl.tsv"
+    threads: workflow.cores
+    resources:
+        mem_mb=6000,
+    conda:
+        "../envs/ocpipe.yaml"
+    script:
+        "../scripts/train_slots_ssl.py"
+
+
+rule train_spot_slots_on_dino:
+    """Only when encoders.spot.dino_checkpoint is given without SPOT's own checkpoint."""
+    input:
+        stores=expand("results/frames/{store}.zarr", store=config["encoders"]["slots_ssl"]["train_stores"]),
+        dino=lambda w: config["encoders"]["spot"]["dino_checkpoint"] or "encoders.spot.dino_checkpoint is not set",
+    output:
+        ckpt="results/encoders/spot/slot_module.pt",
+        curve="results/encoders/spot/train_curve.parquet",
+    params:
+        spot=config["encoders"]["spot"],
+        seed=config["seed"],
+    log:
+        "results/logs/train_spot_slots_on_dino.log",
+    benchmark:
+        "results/benchmarks/train_spot_slots_on_dino.tsv"
+    threads: workflow.cores
+    resources:
+        mem_mb=12000,
+    conda:
+        "../envs/ocpipe.yaml"
+    script:
+        "../scripts/train_spot_slots_on_dino.py"

@@ -1,0 +1,79 @@
+# Features: every frame of a frames store encoded once by a frozen encoder, stored per frame in Zarr chunks,
+# with slot diagnostics, decomposition scores against simulator segmentation, and attention-map figures.
+
+
+def encoder_checkpoint(w):
+    """The checkpoint file a features job depends on (a workflow output, or a user-given weight file)."""
+    if w.encoder == "slots_ssl":
+        return "results/encoders/slots_ssl/model.pt"
+    spot, dino = config["encoders"]["spot"], config["encoders"]["dino"]
+    if w.encoder == "spot":
+        if spot["checkpoint"]:
+            return spot["checkpoint"]
+        return "results/encoders/spot/slot_module.pt" if spot["dino_checkpoint"] else []
+    return dino["checkpoint"] or []  # a missing weight file fails the job with a message naming the key
+
+
+rule features:
+    input:
+        frames="results/frames/{task}_{cams}_{res}.zarr",
+        ckpt=encoder_checkpoint,
+    output:
+        store=directory("results/features/{task}_{cams}_{res}_{encoder}.zarr"),
+    params:
+        encoders=config["encoders"],
+        features=config["features"],
+    log:
+        "results/logs/features/{task}_{cams}_{res}_{encoder}.log",
+    benchmark:
+        "results/benchmarks/features/{task}_{cams}_{res}_{encoder}.tsv"
+    threads: workflow.cores
+    resources:
+        mem_mb=6000,
+    conda:
+        "../envs/ocpipe.yaml"
+    script:
+        "../scripts/features.py"
+
+
+rule features_diagnostics:
+    input:
+        frames="results/frames/{task}_{cams}_{res}.zarr",
+        features="results/features/{task}_{cams}_{res}_{encoder}.zarr",
+    output:
+        json="results/features/{task}_{cams}_{res}_{encoder}.diagnostics.json",
+    params:
+        holdout=config["encoders"]["slots_ssl"]["holdout_episodes"],
+        train_stores=config["encoders"]["slots_ssl"]["train_stores"],
+    log:
+        "results/logs/features_diagnostics/{task}_{cams}_{res}_{encoder}.log",
+    benchmark:
+        "results/benchmarks/features_diagnostics/{task}_{cams}_{res}_{encoder}.tsv"
+    threads: 1
+    resources:
+        mem_mb=4000,
+    conda:
+        "../envs/ocpipe.yaml"
+    script:
+        "../scripts/features_diagnostics.py"
+
+
+rule attention_maps:
+    input:
+        frames="results/frames/{task}_{cams}_{res}.zarr",
+        features="results/features/{task}_{cams}_{res}_{encoder}.zarr",
+    output:
+        png="results/figures/attention_{task}_{cams}_{res}_{encoder}.png",
+    wildcard_constraints:
+        encoder="slots_ssl|spot",
+    params:
+        pairs=config["features"]["attention_pairs"],
+    log:
+        "results/logs/attention_maps/{task}_{cams}_{res}_{encoder}.log",
+    benchmark:
+        "results/benchmarks/attention_maps/{task}_{cams}_{res}_{encoder}.tsv"
+    threads: 1
+    conda:
+        "../envs/ocpipe.yaml"
+    script:
+        "../scripts/attention_maps.py"
