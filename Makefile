@@ -1,7 +1,7 @@
 # The two commands a newcomer needs (README "Quick start"): `make main` and `make test`.
 # Both set up first (bin/setup.sh is idempotent and fast when nothing changed).
 SNAKEMAKE := .venv/bin/snakemake
-MAIN_TARGET ?= results/frames/PickCube-v1_dual_128.zarr results/frames/PickCube-v1_dual_128.report.json
+MAIN_TARGET ?= spatial_grounding
 CORES ?= 2
 
 .PHONY: setup main test dry-run clean
@@ -11,7 +11,7 @@ setup:
 
 main: setup
 	$(SNAKEMAKE) --cores $(CORES) $(MAIN_TARGET)
-	.venv/bin/ocpipe check-store results/frames/PickCube-v1_dual_128.zarr
+	.venv/bin/ocpipe summary results
 
 test: setup
 	.venv/bin/python -m pytest

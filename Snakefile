@@ -18,6 +18,16 @@ include: "workflow/rules/demos.smk"
 include: "workflow/rules/frames.smk"
 include: "workflow/rules/encoders.smk"
 include: "workflow/rules/features.smk"
+include: "workflow/rules/policy.smk"
+include: "workflow/rules/evaluation.smk"
+
+
+rule spatial_grounding:
+    """The main job: Tables 5.1 and 5.2 and figures 5.1-5.3 (Pure Visual / 2D-Spatial-Proj / Explicit-3D-GT)."""
+    input:
+        "results/tables/table5_1.csv",
+        "results/tables/table5_2.csv",
+        expand("results/figures/fig5_{n}.png", n=(1, 2, 3)),
 
 
 rule all:
@@ -25,3 +35,4 @@ rule all:
     input:
         frames_targets(),
         features_targets(),
+        rules.spatial_grounding.input,

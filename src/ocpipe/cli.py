@@ -1,4 +1,4 @@
-"""Command-line helpers around the workflow: `ocpipe check-config`, `ocpipe check-store`."""
+"""Command-line helpers around the workflow: `ocpipe check-config`, `ocpipe check-store`, `ocpipe summary`."""
 
 from __future__ import annotations
 
@@ -16,7 +16,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("files", nargs="*", default=["config/config.yaml"])
     p = sub.add_parser("check-store", help="check a frames store against the contract and print its summary")
     p.add_argument("store")
+    p = sub.add_parser("summary", help="print the headline figures of everything built under a results folder")
+    p.add_argument("results", nargs="?", default="results")
     args = parser.parse_args(argv)
+
+    if args.cmd == "summary":
+        from .summary import summary_lines
+
+        print("\n".join(summary_lines(args.results)))
+        return 0
 
     if args.cmd == "check-config":
         try:

@@ -104,4 +104,17 @@ def _cross_field_problems(config: dict) -> list[str]:
             for kind in ("h5", "json"):
                 if not paths.get(kind):
                     problems.append(f"  demos.import.{task}.{kind}: required when demos.source is 'import'")
+    for table, rows in config["tables"].items():
+        for label, exp in rows.items():
+            if exp not in config["experiments"]:
+                problems.append(f"  tables.{table}.{label}: experiment {exp!r} is not defined under experiments")
+    ev = config["evaluation"]
+    for key in ("sweep_episodes", "stability_episodes", "failure_episodes"):
+        if ev[key] > ev["seed_pool_size"]:
+            problems.append(f"  evaluation.{key}: {ev[key]} episodes > evaluation.seed_pool_size {ev['seed_pool_size']}")
+    from .experiments import problems as policy_problems, resolve
+
+    problems += policy_problems(config["policy"])
+    for name in config["experiments"]:
+        problems += [p for p in policy_problems(resolve(config, name)) if p not in problems]
     return problems

@@ -62,14 +62,7 @@ class Replayer:
         # segmentation rides along in the same render pass; the encoder stage scores slot masks against it
         self.env = sim.make_env(task, config, camera_set, resolution, obs_mode="rgb+segmentation")
         self.segmentation_ids = {int(i): obj.name for i, obj in self.env.unwrapped.segmentation_id_map.items()}
-        approx = config["camera_approx"]
-        # Cameras without a hand-entered model (the moving hand camera) have no approx goal: NaN, not a guess.
-        self.approx_K = np.stack([
-            projection.intrinsic_from_fov(resolution, approx[c]["fov_deg"]) if c in approx else np.full((3, 3), np.nan)
-            for c in self.cameras])
-        self.approx_E = np.stack([
-            projection.extrinsic_look_at(approx[c]["eye"], approx[c]["target"]) if c in approx else np.full((3, 4), np.nan)
-            for c in self.cameras])
+        self.approx_K, self.approx_E = sim.approx_camera_matrices(config, self.cameras, resolution)
 
     def close(self) -> None:
         self.env.close()

@@ -33,6 +33,20 @@ def camera_specs(config: dict, camera_set: str) -> list[CameraSpec]:
     ]
 
 
+def approx_camera_matrices(config: dict, cameras: list[str], resolution: int) -> tuple[np.ndarray, np.ndarray]:
+    """(C, 3, 3) intrinsics and (C, 3, 4) extrinsics of the hand-entered camera model (config camera_approx).
+
+    Cameras without a hand-entered model (the moving hand camera) get NaN: no approx goal, not a guess."""
+    from . import projection
+
+    approx = config["camera_approx"]
+    K = [projection.intrinsic_from_fov(resolution, approx[c]["fov_deg"]) if c in approx else np.full((3, 3), np.nan)
+         for c in cameras]
+    E = [projection.extrinsic_look_at(approx[c]["eye"], approx[c]["target"]) if c in approx
+         else np.full((3, 4), np.nan) for c in cameras]
+    return np.stack(K), np.stack(E)
+
+
 @functools.cache
 def _env_class(task: str):
     import mani_skill.envs  # noqa: F401  (registers the tasks)

@@ -7,11 +7,19 @@ wildcard_constraints:
     encoder="slots_ssl|spot|dino_cls|dino_grid4|dino_dense",
     res=r"\d+",
     shard=r"\d+",
+    exp=r"[A-Za-z0-9][A-Za-z0-9_-]*",
 
 
 def cfg(*sections):
     """The named top-level config sections, as one dict (a rule's params)."""
     return {s: config[s] for s in sections}
+
+
+def demo_params():
+    """Demo jobs read the evaluation pool only to keep demo seeds out of it: pass just its bounds, so changing
+    other evaluation settings never regenerates demos."""
+    pool = {k: config["evaluation"][k] for k in ("seed_pool_start", "seed_pool_size")}
+    return {**cfg("sim", "demos"), "evaluation": pool}
 
 
 def frames_stores():

@@ -9,7 +9,7 @@ if config["demos"]["source"] == "motionplanning":
             json="results/demos/shards/{task}/shard{shard}.json",
             report="results/demos/shards/{task}/shard{shard}.report.json",
         params:
-            cfg=cfg("sim", "demos", "evaluation"),
+            cfg=demo_params(),
         log:
             "results/logs/demos_shard/{task}_shard{shard}.log",
         benchmark:
@@ -51,7 +51,7 @@ else:
             json="results/demos/{task}.json",
             report="results/demos/{task}.report.json",
         params:
-            cfg=cfg("sim", "demos", "evaluation"),
+            cfg=demo_params(),
         log:
             "results/logs/demos_import/{task}.log",
         benchmark:

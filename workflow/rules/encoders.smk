@@ -16,7 +16,7 @@ rule train_slots_ssl:
         "results/logs/train_slots_ssl.log",
     benchmark:
         "results/benchmarks/train_slots_ssl.tsv"
-    threads: workflow.cores
+    threads: config["compute"]["train_slots_ssl"]
     resources:
         mem_mb=6000,
     conda:

@@ -27,7 +27,7 @@ rule features:
         "results/logs/features/{task}_{cams}_{res}_{encoder}.log",
     benchmark:
         "results/benchmarks/features/{task}_{cams}_{res}_{encoder}.tsv"
-    threads: workflow.cores
+    threads: config["compute"]["features"]
     resources:
         mem_mb=6000,
     conda:

@@ -1,0 +1,145 @@
+"""Policy-training benchmarks (issue 4): the chunk-aware loader vs a plain shuffled random-access loader, and
+seconds per training epoch at the thesis' model width vs the default profile's.
+
+    .venv/bin/python bench/bench_policy.py                       # on the default build's stores
+    .venv/bin/python bench/bench_policy.py --synthetic 20000     # on a synthetic thesis-shaped store (7 x 256)
+
+Each loader runs in its own process so its peak RSS is its own."""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests"))
+
+from ocpipe import config as cfgmod  # noqa: E402
+from ocpipe import experiments  # noqa: E402
+from ocpipe.policy.training import load_data  # noqa: E402
+from ocpipe.policy.windows import ChunkWindowLoader, make_batch  # noqa: E402
+
+
+class RandomAccessWindows(torch.utils.data.Dataset):
+    """The baseline: one sample = one read of its T frames straight from the Zarr store."""
+
+    def __init__(self, tokens, labels, T, H, cameras):
+        self.tokens, self.labels, self.T, self.H, self.cameras = tokens, labels, T, H, cameras
+
+    def __len__(self):
+        return self.tokens.shape[0]
+
+    def __getitem__(self, i):
+        lo = max(int(self.labels.start[i]), i - self.T + 1)
+        block = np.asarray(self.tokens[lo : i + 1])
+        b = make_batch(block, lo, np.array([i]), self.labels, self.T, self.H, self.cameras)
+        return {k: v[0] for k, v in b.items()}
+
+
+def _loader_worker(kind, policy, features, frames, max_batches, queue):
+    torch.set_num_threads(1)
+    tokens, labels, _, _ = load_data(policy, features, frames)
+    if kind == "chunk-aware":
+        it = ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], policy["batch_size"],
+                               policy["cameras"], seed=0).epoch(0)
+    else:
+        ds = RandomAccessWindows(tokens, labels, policy["window"], policy["horizon"], policy["cameras"])
+        it = iter(torch.utils.data.DataLoader(ds, batch_size=policy["batch_size"], shuffle=True,
+                                              generator=torch.Generator().manual_seed(0)))
+    n, t0 = 0, time.perf_counter()
+    for b, batch in enumerate(it):
+        n += len(batch["action"])
+        if max_batches and b + 1 >= max_batches:
+            break
+    seconds = time.perf_counter() - t0
+    queue.put({"samples": n, "seconds": seconds, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024})
+
+
+def measure_loader(kind, policy, features, frames, max_batches):
+    queue = mp.get_context("spawn").Queue()
+    proc = mp.get_context("spawn").Process(target=_loader_worker, args=(kind, policy, features, frames, max_batches, queue))
+    proc.start()
+    out = queue.get()
+    proc.join()
+    return out
+
+
+def seconds_per_epoch(policy, features, frames, max_batches, threads):
+    from ocpipe.policy.model import SequencePolicy, loss_terms
+    from ocpipe.policy.weighting import loss_weights
+
+    torch.set_num_threads(threads)
+    tokens, labels, _, meta = load_data(policy, features, frames)
+    loader = ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], policy["batch_size"],
+                               policy["cameras"], seed=0)
+    torch.manual_seed(0)
+    model = SequencePolicy(policy, meta["K"], meta["D"])
+    opt = torch.optim.AdamW(model.parameters(), lr=policy["lr"])
+    n, t0 = 0, time.perf_counter()
+    for b, batch in enumerate(loader.epoch(0)):
+        loss = loss_terms(model(batch["tokens"], batch["proprio"], batch["goal"]), batch["action"],
+                          loss_weights("uniform", batch["progress"]), False)["loss"]
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        n += 1
+        if max_batches and n >= max_batches:
+            break
+    per_batch = (time.perf_counter() - t0) / n
+    return per_batch * len(loader), n, len(loader), sum(p.numel() for p in model.parameters())
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--config", default=str(REPO / "config" / "config.yaml"))
+    ap.add_argument("--synthetic", type=int, default=0, help="frames of a synthetic (N, 2, 7, 256) store instead")
+    ap.add_argument("--random-batches", type=int, default=20, help="batches timed for the random-access loader")
+    ap.add_argument("--epoch-batches", type=int, default=60, help="batches timed per model (epoch time extrapolated)")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    config = cfgmod.load(args.config)
+    policy = experiments.resolve(config, "goal2d")
+    tmp = None
+    if args.synthetic:
+        from policy_stores import write_stores
+
+        tmp = tempfile.TemporaryDirectory()
+        n_eps = args.synthetic // 78
+        features, frames = write_stores(Path(tmp.name), lengths=[78] * n_eps, K=7, D=256, chunk=4096)
+        where = f"synthetic store: {n_eps * 78} frames x 2 cameras x 7 slots x 256 (float16), chunks of 4096"
+    else:
+        features = REPO / "results" / "features" / f"{experiments.features_store(policy)}.zarr"
+        frames = REPO / "results" / "frames" / f"{experiments.frames_store(policy)}.zarr"
+        if not features.exists():
+            sys.exit(f"{features} is missing: build it first (make main) or pass --synthetic N")
+        where = str(features)
+    print(f"store: {where}\n")
+    chunk = measure_loader("chunk-aware", policy, features, frames, 0)
+    rand = measure_loader("random-access", policy, features, frames, args.random_batches)
+    rate = lambda r: r["samples"] / r["seconds"]  # noqa: E731
+    print(f"{'loader':<16}{'samples':>10}{'seconds':>10}{'samples/s':>12}{'peak RSS MB':>14}")
+    for name, r in (("chunk-aware", chunk), ("random-access", rand)):
+        print(f"{name:<16}{r['samples']:>10}{r['seconds']:>10.2f}{rate(r):>12.1f}{r['peak_rss_mb']:>14.0f}")
+    print(f"ratio chunk-aware / random-access: {rate(chunk) / rate(rand):.1f}x samples/s\n")
+
+    thesis = {**policy, "width": 256, "layers": 8, "heads": 8}
+    print(f"{'model':<28}{'params':>10}{'s/epoch':>10}  (batch {policy['batch_size']}, {args.threads} threads)")
+    results = {}
+    for name, p in (("default (w128, 4 layers)", policy), ("thesis (w256, 8 layers)", thesis)):
+        sec, n, total, params = seconds_per_epoch(p, features, frames, args.epoch_batches, args.threads)
+        results[name] = sec
+        print(f"{name:<28}{params:>10}{sec:>10.1f}  ({n} of {total} batches timed)")
+    a, b = results.values()
+    print(f"ratio thesis / default: {b / a:.1f}x seconds per epoch")
+
+
+if __name__ == "__main__":
+    main()

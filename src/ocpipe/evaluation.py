@@ -1,0 +1,144 @@
+"""Closed-loop evaluation of a policy checkpoint (SPEC section 8).
+
+Each step renders the training cameras, encodes them with the same frozen encoder, and keeps a window of the
+last T steps (the first step repeated at the start, as in training). Every `execute_actions` steps the policy is
+queried and the first `execute_actions` of its H predicted actions are executed. An episode ends at the first
+success or at the episode cap. Successes in fewer than `trivial_steps` steps are flagged trivial (they say
+nothing about the policy) and left out of the success rate."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import torch
+from tqdm import tqdm
+
+from . import projection, sim
+from .encoders import registry
+from .features import sha256
+from .policy import normalization
+from .policy.training import load_policy
+
+log = logging.getLogger(__name__)
+
+
+def seed_pool(evaluation: dict) -> np.ndarray:
+    return np.arange(evaluation["seed_pool_start"], evaluation["seed_pool_start"] + evaluation["seed_pool_size"])
+
+
+def sample_seeds(evaluation: dict, n: int, *stream: int) -> list[int]:
+    """``n`` distinct held-out seeds, drawn deterministically for the random stream (root seed, purpose, run)."""
+    pool = seed_pool(evaluation)
+    if n > len(pool):
+        raise ValueError(f"{n} episodes asked for but evaluation.seed_pool_size is {len(pool)}")
+    return sorted(int(s) for s in np.random.default_rng(list(stream)).choice(pool, size=n, replace=False))
+
+
+class ClosedLoop:
+    """One environment + the frozen encoder + one policy checkpoint."""
+
+    def __init__(self, checkpoint: str | Path, config: dict, frames_store: str | Path,
+                 encoder_checkpoint: str | Path | None, device: str = "cpu"):
+        self.device = torch.device(device)
+        self.model, self.stats, self.policy, self.meta = load_policy(checkpoint, self.device)
+        p = self.policy
+        if encoder_checkpoint and self.meta.get("encoder_checkpoint_sha256") not in (None, sha256(encoder_checkpoint)):
+            raise ValueError(f"{encoder_checkpoint} is not the encoder checkpoint that {checkpoint} was trained on "
+                             "(sha256 differs): rebuild the features store and retrain")
+        self.encoder = registry.build(p["encoder"], config["encoders"], frames_store, encoder_checkpoint)
+        self.task = p["task"]
+        self.camera_names = list(sim.CAMERA_SETS[p["cams"]])
+        self.uids = [sim.SIM_CAMERA_UID[c] for c in self.camera_names]
+        self.env = sim.make_env(self.task, config, p["cams"], p["resolution"], obs_mode="rgb")
+        self.approx_K, self.approx_E = sim.approx_camera_matrices(config, self.camera_names, p["resolution"])
+        ev = config["evaluation"]
+        self.cap = ev["episode_cap"][self.task]
+        self.execute = min(ev["execute_actions"], p["horizon"])
+        self.trivial_steps = ev["trivial_steps"]
+
+    def close(self) -> None:
+        self.env.close()
+
+    def _goal(self, obs, goal_pos: np.ndarray) -> np.ndarray:
+        kind = self.policy["goal"]
+        if kind == "none":
+            return np.zeros(0, np.float32)
+        if kind == "3d":
+            return goal_pos.astype(np.float32)
+        res = self.policy["resolution"]
+        if self.policy["goal_calibration"] == "approx":
+            K, E = self.approx_K, self.approx_E
+        else:
+            params = obs["sensor_param"]
+            K = np.stack([params[u]["intrinsic_cv"][0].cpu().numpy() for u in self.uids])
+            E = np.stack([params[u]["extrinsic_cv"][0].cpu().numpy() for u in self.uids])
+        return projection.goal2d(goal_pos[None], K, E, res)[0].astype(np.float32)
+
+    @torch.inference_mode()
+    def _observe(self, obs) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:
+        rgb = torch.stack([obs["sensor_data"][u]["rgb"][0] for u in self.uids])[None].cpu()
+        tokens = self.encoder.encode(rgb)[0][0][self.policy["cameras"]].float()
+        labels = sim.task_readouts(self.env)
+        proprio = normalization.proprio(labels["qpos"][None], self.stats)[0]
+        return tokens, proprio, self._goal(obs, labels["goal_pos"]), labels
+
+    @torch.inference_mode()
+    def episode(self, seed: int) -> tuple[dict, dict[str, list]]:
+        obs, _ = self.env.reset(seed=seed)
+        T = self.policy["window"]
+        window: deque = deque(maxlen=T)
+        steps: dict[str, list] = {k: [] for k in ("step", "action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos",
+                                                   "reward")}
+        queue: list[np.ndarray] = []
+        success, total = False, 0.0
+        for t in range(self.cap):
+            tokens, proprio, goal, labels = self._observe(obs)
+            window.append((tokens, proprio, goal))
+            while len(window) < T:
+                window.appendleft(window[0])
+            if not queue:
+                batch = [torch.stack([torch.as_tensor(w[i]) for w in window])[None].to(self.device) for i in range(3)]
+                pred = self.model(*batch)[0].cpu().numpy()
+                queue = list(normalization.action_from_model(pred, self.stats)[: self.execute])
+            action = queue.pop(0)
+            obs, reward, _, _, info = self.env.step(torch.as_tensor(action[None]))
+            reward = float(reward[0])
+            total += reward
+            for k, v in (("step", t), ("action", action.tolist()), ("is_grasped", labels["is_grasped"]),
+                         ("tcp_pos", labels["tcp_pos"].tolist()), ("goal_pos", labels["goal_pos"].tolist()),
+                         ("obj_pos", labels["obj_pos"].tolist()), ("reward", reward)):
+                steps[k].append(v)
+            if bool(info["success"][0]):
+                success = True
+                break
+        n = len(steps["step"])
+        row = {"seed": seed, "success": success, "steps": n, "trivial": success and n < self.trivial_steps,
+               "return": total}
+        return row, steps
+
+
+def run(loop: ClosedLoop, seeds: list[int], ids: dict, progress: bool = True) -> tuple[pl.DataFrame, pl.DataFrame]:
+    """Episodes for ``seeds`` -> (one row per episode, one row per step); ``ids`` (exp, checkpoint, run) tag rows."""
+    rows, step_frames = [], []
+    t0 = time.perf_counter()
+    bar = tqdm(seeds, desc=f"eval {ids}", unit="episode", disable=not progress)
+    for seed in bar:
+        row, steps = loop.episode(seed)
+        rows.append({**ids, **row})
+        step_frames.append(pl.DataFrame({**{k: [v] * len(steps["step"]) for k, v in ids.items()},
+                                         "seed": [seed] * len(steps["step"]), **steps}))
+        sr = np.mean([r["success"] and not r["trivial"] for r in rows])
+        bar.set_postfix(sr=f"{sr:.2f}")
+    log.info("%d episodes in %.1f s", len(seeds), time.perf_counter() - t0)
+    return pl.DataFrame(rows), pl.concat(step_frames, how="vertical")
+
+
+def success_rate(episodes: pl.DataFrame) -> float:
+    """Share of episodes that succeeded non-trivially; trivial successes count in neither numerator nor total."""
+    kept = episodes.filter(~pl.col("trivial"))
+    return float(kept["success"].mean()) if len(kept) else float("nan")

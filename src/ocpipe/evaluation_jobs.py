@@ -1,0 +1,68 @@
+"""What each evaluation job runs: which checkpoint, which seeds (sweep, stability run, failure run)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import polars as pl
+
+from . import evaluation
+from .atomic import atomic_path, write_json
+
+# random streams for sample_seeds: (root seed, purpose[, run])
+SWEEP, STABILITY, FAILURE_RUN = 0, 1, 2
+
+
+def seeds_for(kind: str, evaluation_cfg: dict, seed: int, run: int = 0) -> list[int]:
+    if kind == "sweep":  # every checkpoint and experiment sees the same episodes: comparisons are paired
+        return evaluation.sample_seeds(evaluation_cfg, evaluation_cfg["sweep_episodes"], seed, SWEEP)
+    if kind == "stability":
+        return evaluation.sample_seeds(evaluation_cfg, evaluation_cfg["stability_episodes"], seed, STABILITY, run)
+    if kind == "failure_run":
+        return evaluation.sample_seeds(evaluation_cfg, evaluation_cfg["failure_episodes"], seed, FAILURE_RUN)
+    raise ValueError(f"unknown evaluation kind {kind!r}")
+
+
+def best_checkpoint(sweep_files: list[str | Path]) -> dict:
+    """The checkpoint with the highest sweep SR; ties go to the higher mean return, then the later epoch."""
+    rows = []
+    for f in sweep_files:
+        eps = pl.read_parquet(f)
+        rows.append({"checkpoint": int(eps["checkpoint"][0]), "sr": evaluation.success_rate(eps),
+                     "mean_return": float(eps["return"].mean()), "episodes": len(eps)})
+    rows.sort(key=lambda r: (r["sr"] if r["sr"] == r["sr"] else -1.0, r["mean_return"], r["checkpoint"]))
+    return {"epoch": rows[-1]["checkpoint"], "sweep": rows}
+
+
+def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_ckpt, out_episodes, out_steps,
+            seed: int, run: int = 0, best_json=None, epoch: int | None = None, threads: int = 1,
+            progress: bool = True) -> pl.DataFrame:
+    if epoch is None:
+        epoch = json.loads(Path(best_json).read_text())["epoch"]
+    ckpt = Path(checkpoints_dir) / f"epoch_{epoch:04d}.pt"
+    if not ckpt.is_file():
+        raise FileNotFoundError(f"{ckpt}: experiment {exp} saved no checkpoint at epoch {epoch}")
+    import torch
+
+    torch.set_num_threads(threads)
+    device = config["evaluation"]["device"]
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    loop = evaluation.ClosedLoop(ckpt, config, frames, encoder_ckpt or None, device=device)
+    try:
+        seeds = seeds_for(kind, config["evaluation"], seed, run)
+        episodes, steps = evaluation.run(loop, seeds, {"exp": exp, "checkpoint": epoch, "run": run}, progress)
+    finally:
+        loop.close()
+    with atomic_path(out_steps) as tmp:
+        steps.write_parquet(tmp)
+    with atomic_path(out_episodes) as tmp:
+        episodes.write_parquet(tmp)
+    return episodes
+
+
+def write_best(sweep_files, out_json) -> dict:
+    best = best_checkpoint(sweep_files)
+    write_json(out_json, best)
+    return best

@@ -1,0 +1,42 @@
+"""Named experiments: the base `policy` config with an experiment's overrides applied."""
+
+from __future__ import annotations
+
+from .config import ConfigError
+
+
+def resolve(config: dict, name: str) -> dict:
+    """The full policy settings of experiment ``name`` (base policy, then its overrides)."""
+    experiments = config["experiments"]
+    if name not in experiments:
+        raise ConfigError(f"experiments.{name}: no such experiment (defined: {', '.join(sorted(experiments))})")
+    return {**config["policy"], **(experiments[name] or {}), "name": name}
+
+
+def saved_epochs(policy: dict) -> list[int]:
+    """Epochs (1-based) whose checkpoint is kept: every save_every-th and the last."""
+    epochs = list(range(policy["save_every"], policy["epochs"] + 1, policy["save_every"]))
+    return epochs if epochs and epochs[-1] == policy["epochs"] else [*epochs, policy["epochs"]]
+
+
+def features_store(policy: dict) -> str:
+    return f"{policy['task']}_{policy['cams']}_{policy['resolution']}_{policy['encoder']}"
+
+
+def frames_store(policy: dict) -> str:
+    return f"{policy['task']}_{policy['cams']}_{policy['resolution']}"
+
+
+def problems(policy: dict) -> list[str]:
+    """Combinations the schema cannot express, named by key."""
+    key = f"experiments.{policy['name']}" if "name" in policy else "policy"
+    out = []
+    if policy["fusion"] == "cross_attention" and (len(policy["cameras"]) != 2 or policy["visual_head"] != "tokens"):
+        out.append(f"  {key}.fusion: cross_attention needs two cameras and visual_head 'tokens'")
+    if policy["heads"] and policy["width"] % policy["heads"]:
+        out.append(f"  {key}.heads: width {policy['width']} is not divisible by {policy['heads']} heads")
+    if max(policy["cameras"]) > 1:
+        out.append(f"  {key}.cameras: a frames store has two cameras (indices 0 and 1)")
+    if policy["goal"] == "2d" and policy["cams"] == "native" and policy["goal_calibration"] == "approx":
+        out.append(f"  {key}.goal_calibration: the hand camera moves, so 'approx' 2d goals exist only for cams 'dual'")
+    return out

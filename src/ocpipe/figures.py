@@ -1,0 +1,69 @@
+"""The study's figures 5.1-5.3 from training logs and evaluation Parquet files."""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import polars as pl  # noqa: E402
+
+from .atomic import atomic_path  # noqa: E402
+from .tables import TABLE5_2_CLASSES, stability_summary  # noqa: E402
+from .taxonomy import counts  # noqa: E402
+
+
+def _save(fig, path) -> None:
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+
+
+def fig5_1(train_logs: dict[str, pl.DataFrame], sweeps: dict[str, pl.DataFrame], path, window: int = 10) -> None:
+    """Training loss (raw and rolling mean) and mean evaluation return per saved epoch, per method."""
+    fig, (ax_loss, ax_ret) = plt.subplots(1, 2, figsize=(11, 4))
+    for i, (method, logs) in enumerate(train_logs.items()):
+        colour = f"C{i}"
+        ax_loss.plot(logs["epoch"], logs["loss"], color=colour, alpha=0.25, lw=1)
+        rolling = logs["loss"].rolling_mean(window_size=window, min_samples=1)
+        ax_loss.plot(logs["epoch"], rolling, color=colour, lw=2, label=method)
+        sweep = sweeps[method].group_by("checkpoint").agg(pl.col("return").mean(), pl.col("success").mean())
+        sweep = sweep.sort("checkpoint")
+        ax_ret.plot(sweep["checkpoint"], sweep["return"], "o-", color=colour, label=method)
+    ax_loss.set(xlabel="epoch", ylabel="training loss", yscale="log",
+                title=f"Training loss ({window}-epoch rolling mean)")
+    ax_ret.set(xlabel="epoch (checkpoint)", ylabel="mean episode return", title="Evaluation reward per epoch")
+    for ax in (ax_loss, ax_ret):
+        ax.legend()
+        ax.grid(alpha=0.3)
+    _save(fig, path)
+
+
+def fig5_2(stability: dict[str, pl.DataFrame], path) -> None:
+    """Mean episode length (mean +- std over stability runs) per method."""
+    methods = list(stability)
+    s = [stability_summary(stability[m]) for m in methods]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.bar(methods, [x["length_mean"] for x in s], yerr=[np.nan_to_num(x["length_std"]) for x in s], capsize=6,
+           color=[f"C{i}" for i in range(len(methods))])
+    ax.set(ylabel="mean episode length (steps)", title="Episode length over stability runs (mean ± std)")
+    ax.grid(axis="y", alpha=0.3)
+    _save(fig, path)
+
+
+def fig5_3(classes: dict[str, pl.DataFrame], path) -> None:
+    """Failure-class counts per method (grouped bars)."""
+    methods = list(classes)
+    c = {m: counts(classes[m]) for m in methods}
+    names = [n for n in TABLE5_2_CLASSES + ("Grasp No Stack",) if any(c[m].get(n, 0) for m in methods)] or ["Success"]
+    x = np.arange(len(names))
+    width = 0.8 / max(1, len(methods))
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for i, m in enumerate(methods):
+        ax.bar(x + i * width, [c[m].get(n, 0) for n in names], width, label=m, color=f"C{i}")
+    ax.set_xticks(x + width * (len(methods) - 1) / 2, names)
+    ax.set(ylabel="episodes", title="Failure distribution")
+    ax.legend()
+    ax.grid(axis="y", alpha=0.3)
+    _save(fig, path)

@@ -1,0 +1,92 @@
+"""The Autoregressive Multimodal Sequence Policy (SPEC section 7).
+
+Per timestep the sequence holds, in this order: the visual tokens of every camera used, one proprioception token
+(3-layer MLP), one goal token (2d: 3-layer MLP of the 4-vector; 3d: linear of xyz; absent for goal 'none') and
+one learnable action token. Learned positional embeddings cover the whole T-step sequence; a causal GPT-style
+decoder (pre-norm) runs over it, and the current step's action token is read out by a 3-layer MLP into
+H x 8 actions (joints z-scored, gripper raw). With `gripper: bce` a separate 3-layer MLP gives H gripper logits."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from .heads import HEADS, CrossCameraFusion, mlp
+
+GOAL_DIMS = {"none": 0, "2d": 4, "3d": 3}
+PROPRIO_DIMS = {"joints7": 7, "qpos9_global": 9, "qpos9_grouped": 9}
+
+
+class SequencePolicy(nn.Module):
+    def __init__(self, policy: dict, K: int, D: int):
+        super().__init__()
+        W, heads = policy["width"], policy["heads"]
+        self.T, self.H = policy["window"], policy["horizon"]
+        self.cams = len(policy["cameras"])
+        self.goal_kind = policy["goal"]
+        self.tanh = policy["action_head"] == "tanh"
+        self.bce = policy["gripper"] == "bce"
+        self.visual = HEADS[policy["visual_head"]](K, D, W, heads)
+        self.fusion = CrossCameraFusion(W, heads) if policy["fusion"] == "cross_attention" else None
+        self.proprio = mlp([PROPRIO_DIMS[policy["proprio"]], W, W, W])
+        self.goal = {"none": None, "2d": mlp([4, W, W, W]), "3d": nn.Linear(3, W)}[self.goal_kind]
+        self.action_token = nn.Parameter(torch.zeros(W))
+        self.per_step = self.cams * self.visual.tokens_out + 1 + (self.goal is not None) + 1
+        self.pos = nn.Parameter(torch.zeros(self.T * self.per_step, W))
+        layer = nn.TransformerEncoderLayer(W, heads, 4 * W, dropout=policy["dropout"], activation="gelu",
+                                           batch_first=True, norm_first=True)
+        self.decoder = nn.TransformerEncoder(layer, policy["layers"], enable_nested_tensor=False)
+        self.norm = nn.LayerNorm(W)
+        self.readout = mlp([W, W, W, self.H * (7 if self.bce else 8)])
+        self.gripper_head = mlp([W, W, W, self.H]) if self.bce else None
+        nn.init.normal_(self.pos, std=0.02)
+        nn.init.normal_(self.action_token, std=0.02)
+
+    def tokens(self, tokens, proprio, goal):
+        """(B, T, C, K, D), (B, T, P), (B, T, G) -> the flattened sequence (B, T * per_step, W)."""
+        B, T = tokens.shape[:2]
+        if T != self.T:
+            raise ValueError(f"policy expects windows of T={self.T} steps, got {T}")
+        vis = self.visual(tokens)  # (B, T, C, k, W)
+        if self.fusion is not None:
+            vis = self.fusion(vis)
+        parts = [vis.flatten(2, 3), self.proprio(proprio)[:, :, None]]
+        if self.goal is not None:
+            parts.append(self.goal(goal)[:, :, None])
+        parts.append(self.action_token.expand(B, T, 1, -1))
+        return torch.cat(parts, dim=2).flatten(1, 2) + self.pos
+
+    def forward(self, tokens, proprio, goal, all_steps: bool = False) -> torch.Tensor:
+        """-> (B, H, 8) predictions for the current step, or (B, T, H, 8) for every step's action token."""
+        seq = self.tokens(tokens, proprio, goal)
+        L = seq.shape[1]
+        mask = nn.Transformer.generate_square_subsequent_mask(L, device=seq.device, dtype=seq.dtype)
+        h = self.norm(self.decoder(seq, mask=mask, is_causal=True))
+        act = h[:, self.per_step - 1 :: self.per_step]  # (B, T, W): each step's action token
+        if not all_steps:
+            act = act[:, -1:]
+        out = self.readout(act)
+        B, S = act.shape[:2]
+        if self.bce:
+            out = torch.cat([out.reshape(B, S, self.H, 7), self.gripper_head(act).reshape(B, S, self.H, 1)], -1)
+        else:
+            out = out.reshape(B, S, self.H, 8)
+        if self.tanh:
+            out = torch.cat([torch.tanh(out[..., :7]), out[..., 7:]], -1)
+        return out if all_steps else out[:, 0]
+
+
+def loss_terms(pred: torch.Tensor, target: torch.Tensor, weights: torch.Tensor, bce: bool) -> dict[str, torch.Tensor]:
+    """Weighted MSE on z-scored joints; gripper MSE on the raw command or BCE on its logit."""
+    joints = (weights[..., :7] * (pred[..., :7] - target[..., :7]) ** 2).mean()
+    if bce:
+        g = nn.functional.binary_cross_entropy_with_logits(pred[..., 7], (target[..., 7] > 0).float(), reduction="none")
+    else:
+        g = (pred[..., 7] - target[..., 7]) ** 2
+    gripper = (weights[..., 7] * g).mean()
+    # the gripper is one of 8 action dims: weight it like one so the total equals a plain 8-dim MSE under 'uniform'
+    return {"loss": (7 * joints + gripper) / 8, "loss_joints": joints, "loss_gripper": gripper}
+
+
+def parameter_count(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)

@@ -1,0 +1,50 @@
+"""One screen of headline figures from the reports a run left under results/."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+def _fmt(x, spec=".3f"):
+    return "n/a" if x is None else format(x, spec)
+
+
+def summary_lines(results: str | Path) -> list[str]:
+    results = Path(results)
+    lines = []
+    for path in sorted(results.glob("demos/*.report.json")):
+        r = json.loads(path.read_text())
+        lines.append(f"demos     {path.name.removesuffix('.report.json')}: {r['episodes']} episodes, seeds "
+                     f"{r['seed_min']}..{r['seed_max']}, failed plans {r.get('failed_plans', 0)}")
+    for path in sorted(results.glob("frames/*.report.json")):
+        r = json.loads(path.read_text())
+        offsets = ", ".join(f"{c} {_fmt(v, '.2f')} px" for c, v in r["goal2d_approx_offset_px_mean"].items())
+        lines.append(f"frames    {path.name.removesuffix('.report.json')}: {r['frames']} frames / {r['episodes']} "
+                     f"episodes, replay success {r['replay_success_rate']:.3f}, "
+                     f"{_fmt(r.get('frames_per_second_per_job'), '.1f')} frames/s per job, approx-goal offset {offsets}")
+    ev = results / "encoders" / "slots_ssl" / "held_out_decomposition.json"
+    if ev.is_file():
+        r = json.loads(ev.read_text())
+        lines.append(f"encoder   slots_ssl: trained {r['steps']} steps in {r['train_seconds'] / 60:.1f} min")
+        for store, s in r["held_out"].items():
+            a = s["all"]
+            named = ", ".join(f"{k.removeprefix('best_slot_iou_')} {_fmt(v)}" for k, v in a.items()
+                              if k.startswith("best_slot_iou_") and not k.endswith("_images"))
+            lines.append(f"          held-out {store} ({s['frames']} frames): FG-ARI {_fmt(a['fg_ari_mean'])}, "
+                         f"best-slot IoU {named}")
+    for path in sorted(results.glob("features/*.diagnostics.json")):
+        r = json.loads(path.read_text())
+        lines.append(f"features  {path.name.removesuffix('.diagnostics.json')}: tokens {r['tokens_shape']}, "
+                     f"{_fmt(r.get('encode_frames_per_second'), '.1f')} frames/s encoding")
+    for path in sorted(results.glob("runs/*/train_log.parquet")):
+        import polars as pl
+
+        log = pl.read_parquet(path)
+        best = path.parent / "best.json"
+        picked = f", best checkpoint epoch {json.loads(best.read_text())['epoch']}" if best.is_file() else ""
+        lines.append(f"policy    {path.parent.name}: {log['epoch'].max()} epochs, {log['seconds'].mean():.1f} s/epoch, "
+                     f"final loss {log['loss'][-1]:.4f}{picked}")
+    for path in sorted(results.glob("tables/table5_*.md")):
+        lines += ["", path.read_text().rstrip()]
+    return lines or [f"nothing built under {results} yet"]

@@ -1,0 +1,133 @@
+import numpy as np
+import polars as pl
+import pytest
+
+from ocpipe import evaluation, evaluation_jobs, report, tables, taxonomy
+from ocpipe.config import ConfigError, validate
+
+RULES = {"idle_variance": 0.001, "near_miss_m": 0.10, "stack_near_m": 0.10, "lift_m": 0.02}
+
+
+def steps(n=20, grasped=None, tcp_goal=0.5, action_scale=1.0, lift=0.0, obj_goal=0.5, seed=0):
+    """A synthetic per-step log: goal at the origin, TCP at distance tcp_goal, cube at obj_goal (lifted by lift)."""
+    rng = np.random.default_rng(seed)
+    grasped = [False] * n if grasped is None else grasped
+    obj = [[obj_goal, 0.0, 0.02 + (lift if g else 0.0)] for g in grasped]
+    return pl.DataFrame({"step": list(range(n)), "action": (rng.normal(0, action_scale, (n, 8))).tolist(),
+                         "is_grasped": grasped, "tcp_pos": [[tcp_goal, 0.0, 0.0]] * n, "goal_pos": [[0.0, 0.0, 0.0]] * n,
+                         "obj_pos": obj})
+
+
+@pytest.mark.parametrize("log,success,task,expected", [
+    (steps(), True, "PickCube-v1", "Success"),
+    (steps(action_scale=0.01), False, "PickCube-v1", "Idle"),
+    (steps(), False, "PickCube-v1", "No Grasp"),
+    (steps(grasped=[False] * 5 + [True] * 10 + [False] * 5), False, "PickCube-v1", "Drop"),
+    (steps(grasped=[False] * 5 + [True] * 15, tcp_goal=0.05), False, "PickCube-v1", "Near Miss"),
+    (steps(grasped=[False] * 5 + [True] * 15, tcp_goal=0.5), False, "PickCube-v1", "Unknown"),
+    (steps(grasped=[False] * 5 + [True] * 15, lift=0.05, obj_goal=0.3), False, "StackCube-v1", "Grasp No Stack"),
+    (steps(grasped=[False] * 5 + [True] * 15, lift=0.05, obj_goal=0.05, tcp_goal=0.05), False, "StackCube-v1",
+     "Near Miss"),
+    # Grasp No Stack is StackCube's own class: on PickCube the same log is a Near Miss or Unknown
+    (steps(grasped=[False] * 5 + [True] * 15, lift=0.05, obj_goal=0.3), False, "PickCube-v1", "Unknown"),
+])
+def test_every_taxonomy_branch(log, success, task, expected):
+    assert taxonomy.classify(log, success, task, RULES) == expected
+
+
+def test_first_matching_rule_wins():
+    # successful but idle-looking and never grasped: Success comes first
+    assert taxonomy.classify(steps(action_scale=0.0), True, "PickCube-v1", RULES) == "Success"
+    # idle and never grasped: Idle before No Grasp
+    assert taxonomy.classify(steps(action_scale=0.0), False, "PickCube-v1", RULES) == "Idle"
+
+
+def test_stackcube_funnel_counts_stages_in_order():
+    g = [False] * 5 + [True] * 15
+    logs = {1: steps(), 2: steps(grasped=g), 3: steps(grasped=g, lift=0.05),
+            4: steps(grasped=g, lift=0.05, obj_goal=0.05), 5: steps(grasped=g, lift=0.05, obj_goal=0.05)}
+    eps = pl.DataFrame({"seed": list(logs), "success": [False, False, False, False, True], "trivial": [False] * 5})
+    all_steps = pl.concat([log.with_columns(pl.lit(s).alias("seed")) for s, log in logs.items()])
+    classes = taxonomy.classify_run(eps, all_steps, "StackCube-v1", RULES)
+    assert taxonomy.funnel(classes) == {"episodes": 5, "grasp": 4, "lift": 3, "near target": 2, "success": 1}
+    assert classes["class"].to_list() == ["No Grasp", "Unknown", "Grasp No Stack", "Unknown", "Success"]
+
+
+EVAL = {"seed_pool_start": 10000, "seed_pool_size": 1000, "sweep_episodes": 20, "stability_episodes": 30,
+        "failure_episodes": 200}
+
+
+def test_held_out_seeds_are_deterministic_distinct_and_inside_the_pool():
+    a = evaluation_jobs.seeds_for("stability", EVAL, 0, run=1)
+    assert a == evaluation_jobs.seeds_for("stability", EVAL, 0, run=1)
+    assert a != evaluation_jobs.seeds_for("stability", EVAL, 0, run=2)
+    assert a != evaluation_jobs.seeds_for("stability", EVAL, 1, run=1)
+    assert len(set(a)) == 30 and min(a) >= 10000 and max(a) < 11000
+    assert len(evaluation_jobs.seeds_for("sweep", EVAL, 0)) == 20
+    with pytest.raises(ValueError, match="seed_pool_size"):
+        evaluation.sample_seeds(EVAL, 1001, 0)
+
+
+def test_demo_seeds_may_not_reach_into_the_evaluation_pool(default_config):
+    default_config["demos"]["seed_start"] = 9900
+    with pytest.raises(ConfigError, match="demos.seed_start"):
+        validate(default_config)
+
+
+def test_tables_name_defined_experiments(default_config):
+    default_config["tables"]["table5_1"]["Oracle"] = "no_such_exp"
+    with pytest.raises(ConfigError, match="tables.table5_1.Oracle: experiment 'no_such_exp'"):
+        validate(default_config)
+
+
+def episodes(run, successes, steps_, trivial=None):
+    n = len(successes)
+    return pl.DataFrame({"exp": ["e"] * n, "checkpoint": [10] * n, "run": [run] * n, "seed": list(range(n)),
+                         "success": successes, "steps": steps_, "trivial": trivial or [False] * n,
+                         "return": [1.0] * n})
+
+
+def test_trivial_successes_count_in_neither_numerator_nor_total():
+    eps = episodes(0, [True, True, False, False], [5, 50, 100, 100], trivial=[True, False, False, False])
+    assert evaluation.success_rate(eps) == pytest.approx(1 / 3)
+
+
+def test_table5_1_from_known_rows():
+    runs = pl.concat([episodes(0, [True, False], [40, 100]), episodes(1, [True, True], [40, 60]),
+                      episodes(2, [False, False, True], [100, 100, 4], trivial=[False, False, True])])
+    t = tables.table5_1({"2D": runs})
+    row = t.row(0, named=True)
+    assert row["SR mean"] == pytest.approx(0.5)  # runs: 0.5, 1.0, 0.0
+    assert row["SR std"] == pytest.approx(0.5)  # sample std of (0.5, 1, 0)
+    assert row["Episode length mean"] == pytest.approx((70 + 50 + 100) / 3)
+    assert row["Runs"] == 3 and row["Trivial excluded"] == 1
+
+
+def test_table5_2_counts_and_percentages(tmp_path):
+    classes = pl.DataFrame({"class": ["Success", "Drop", "Drop", "No Grasp", "Success"],
+                            "trivial": [False, False, False, False, True]})
+    t = tables.table5_2({"Pure": classes}).row(0, named=True)
+    assert (t["Success"], t["Drop"], t["No Grasp"], t["Near Miss"], t["Total"]) == (1, 2, 1, 0, 4)
+    assert t["Drop %"] == pytest.approx(50.0)
+
+
+def test_best_checkpoint_prefers_sr_then_return(tmp_path):
+    files = []
+    for epoch, succ, ret in ((10, [True, False], 3.0), (20, [True, False], 5.0), (30, [False, False], 9.0)):
+        f = tmp_path / f"epoch_{epoch}.episodes.parquet"
+        episodes(0, succ, [50, 100]).with_columns(pl.lit(epoch).alias("checkpoint"), pl.lit(ret).alias("return")
+                                                  ).write_parquet(f)
+        files.append(f)
+    assert evaluation_jobs.best_checkpoint(files)["epoch"] == 20
+
+
+def test_report_writes_tables_from_run_files(tmp_path):
+    runs = tmp_path / "runs"
+    for exp, succ in (("a", [True, False]), ("b", [True, True])):
+        (runs / exp / "stability").mkdir(parents=True)
+        for r in range(2):
+            episodes(r, succ, [50, 80]).write_parquet(runs / exp / "stability" / f"run_{r}.episodes.parquet")
+    t = report.write_table5_1({"A": "a", "B": "b"}, tmp_path / "t.csv", tmp_path / "t.md", runs_dir=runs)
+    assert t["SR mean"].to_list() == [0.5, 1.0]
+    assert pl.read_csv(tmp_path / "t.csv")["Method"].to_list() == ["A", "B"]
+    assert "| A |" in (tmp_path / "t.md").read_text()

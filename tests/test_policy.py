@@ -1,0 +1,199 @@
+import itertools
+
+import numpy as np
+import polars as pl
+import pytest
+import torch
+
+from ocpipe.policy import normalization
+from ocpipe.policy.model import SequencePolicy, loss_terms
+from ocpipe.policy.training import load_policy, train
+from ocpipe.policy.weighting import loss_weights
+from ocpipe.policy.windows import ChunkWindowLoader, Labels, action_frames, progress, window_frames
+
+from policy_stores import policy_settings, write_stores
+
+
+def inputs(policy, B=3, K=7, D=16, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    T, C = policy["window"], len(policy["cameras"])
+    P = 7 if policy["proprio"] == "joints7" else 9
+    G = {"none": 0, "2d": 4, "3d": 3}[policy["goal"]]
+    return (torch.randn(B, T, C, K, D, generator=g), torch.randn(B, T, P, generator=g),
+            torch.randn(B, T, G, generator=g))
+
+
+@pytest.mark.parametrize("visual_head,fusion", [("tokens", "concat"), ("tokens", "cross_attention"),
+                                                ("flatten", "concat"), ("deepsets", "concat"),
+                                                ("weighted_pool", "concat"), ("slot_transformer", "concat")])
+def test_changing_a_future_timestep_leaves_earlier_outputs_unchanged(visual_head, fusion):
+    policy = policy_settings(window=5, visual_head=visual_head, fusion=fusion)
+    torch.manual_seed(0)
+    model = SequencePolicy(policy, 7, 16).eval()
+    tokens, proprio, goal = inputs(policy)
+    before = model(tokens, proprio, goal, all_steps=True)
+    tokens[:, 3] += 1.0
+    proprio[:, 3] += 1.0
+    goal[:, 3] += 1.0
+    after = model(tokens, proprio, goal, all_steps=True)
+    torch.testing.assert_close(after[:, :3], before[:, :3], rtol=0, atol=1e-6)
+    assert not torch.allclose(after[:, 3], before[:, 3])
+    torch.testing.assert_close(model(tokens, proprio, goal), after[:, -1])
+
+
+VARIANTS = [dict(zip(("goal", "proprio", "visual_head", "gripper", "action_head", "cameras"), v)) for v in
+            itertools.product(["none", "2d", "3d"], ["joints7", "qpos9_global"], ["tokens", "deepsets"],
+                              ["regression", "bce"], ["linear", "tanh"], [[0], [0, 1]])]
+
+
+@pytest.mark.parametrize("variant", VARIANTS, ids=lambda v: "-".join(str(x) for x in v.values()))
+def test_every_variant_predicts_h_by_8_actions(variant):
+    policy = policy_settings(**variant)
+    model = SequencePolicy(policy, 7, 16)
+    out = model(*inputs(policy))
+    assert out.shape == (3, policy["horizon"], 8)
+    if variant["action_head"] == "tanh":
+        assert out[..., :7].abs().max() <= 1.0
+    terms = loss_terms(out, torch.zeros_like(out), torch.ones_like(out), variant["gripper"] == "bce")
+    terms["loss"].backward()
+
+
+@pytest.mark.parametrize("K,D", [(1, 768), (16, 768), (196, 32)])
+def test_dino_readouts_of_any_token_count(K, D):
+    policy = policy_settings(window=1, horizon=1)
+    model = SequencePolicy(policy, K, D)
+    assert model.per_step == 2 * K + 3
+    assert model(*inputs(policy, K=K, D=D)).shape == (3, 1, 8)
+
+
+def test_gripper_is_a_hard_step_and_joints_are_denormalized():
+    stats = {"action_mean": np.arange(8, dtype=np.float32) * 0.1, "action_std": np.full(8, 2.0, np.float32)}
+    stats["action_mean"][7], stats["action_std"][7] = 0, 1
+    pred = np.zeros((3, 8), np.float32)
+    pred[:, 0] = 1.0
+    pred[:, 7] = [0.3, -0.2, 0.0]
+    out = normalization.action_from_model(pred, stats)
+    assert out[:, 7].tolist() == [1.0, -1.0, -1.0]
+    np.testing.assert_allclose(out[:, 0], 2.0)
+    np.testing.assert_allclose(out[:, 1:7], np.tile(np.arange(1, 7) * 0.1, (3, 1)), rtol=1e-6)
+    raw = np.array([[0.1] * 7 + [1.0], [0.3] * 7 + [-1.0]], np.float32)
+    stats = normalization.compute(np.zeros((2, 9)), raw, "joints7")
+    assert stats["action_mean"][7] == 0 and stats["action_std"][7] == 1  # gripper untouched
+    np.testing.assert_allclose(normalization.action_to_model(raw, stats)[:, 7], [1.0, -1.0])
+
+
+def test_loss_weights_follow_the_spec_numbers():
+    p = torch.tensor([0.0, 0.35, 0.39, 0.4, 0.85, 1.0])
+    u = loss_weights("u_shaped", p)[:, 0]
+    assert u[1] == pytest.approx(2.0, abs=0.01) and u[4] == pytest.approx(2.0, abs=0.01)
+    assert u[0] == pytest.approx(1 + np.exp(-0.5 * (0.35 / 0.15) ** 2), abs=1e-4)  # sigma 0.15
+    d = loss_weights("dim_decoupled", p)
+    assert d[2].tolist() == [1.0] * 7 + [3.0] and d[3].tolist() == [3.0] * 7 + [1.0]
+    assert (loss_weights("time", p, epoch=99, warmup_epochs=100) == 1).all()
+    np.testing.assert_allclose(loss_weights("time", p, epoch=100, warmup_epochs=100)[:, 3], 1 + p.numpy())
+    assert (loss_weights("uniform", p) == 1).all()
+    with pytest.raises(ValueError, match="policy.loss_weighting"):
+        loss_weights("cubic", p)
+
+
+def test_global_9dof_normalization_squashes_the_fingers_and_grouped_restores_them():
+    rng = np.random.default_rng(0)
+    qpos = np.concatenate([rng.normal([0, 0.3, 0, -2.2, 0, 2.5, 0.8], 0.4, (5000, 7)),
+                           rng.uniform(0.018, 0.040, (5000, 1)).repeat(2, 1)], 1)
+    spread = lambda mode: normalization.proprio(qpos, {  # noqa: E731
+        k: v for k, v in normalization.compute(qpos, np.zeros((1, 8)), mode).items() if k.startswith("proprio")
+    })[:, 7:].std(0)
+    assert spread("qpos9_global").max() < 0.01  # fingers nearly constant: the thesis' pathology
+    np.testing.assert_allclose(spread("qpos9_grouped"), 1.0, atol=0.01)
+
+
+def test_windows_pad_at_episode_edges():
+    labels = Labels.from_offsets([0, 4, 10], np.zeros((10, 7)), np.zeros((10, 0)), np.zeros((10, 8)))
+    frames = np.array([0, 1, 4, 9])
+    assert window_frames(frames, labels, 3).tolist() == [[0, 0, 0], [0, 0, 1], [4, 4, 4], [7, 8, 9]]
+    acts = action_frames(frames, labels, 3)
+    assert acts.tolist() == [[0, 1, 2], [1, 2, 3], [4, 5, 6], [9, 9, 9]]
+    np.testing.assert_allclose(progress(acts, frames, labels)[3], [1, 1, 1])
+    np.testing.assert_allclose(progress(acts, frames, labels)[0], [0, 1 / 3, 2 / 3])
+
+
+class ReadRecorder:
+    """A tokens array that records every slice read from it."""
+
+    def __init__(self, arr, chunk):
+        self.arr, self.chunks, self.shape, self.reads = arr, (chunk,), arr.shape, []
+
+    def __getitem__(self, s):
+        self.reads.append((s.start, s.stop))
+        return self.arr[s]
+
+
+def test_loader_yields_each_window_once_per_epoch_one_chunk_at_a_time():
+    N, chunk, T = 95, 32, 3
+    tokens = np.arange(N, dtype=np.float32)[:, None, None, None] * np.ones((1, 2, 7, 4), np.float32)
+    labels = Labels.from_offsets([0, 30, 55, 95], np.zeros((N, 7), np.float32), np.zeros((N, 0), np.float32),
+                                 np.zeros((N, 8), np.float32))
+    rec = ReadRecorder(tokens, chunk)
+    loader = ChunkWindowLoader(rec, labels, T, 4, batch_size=10, cameras=[0, 1], seed=0)
+    orders = []
+    for epoch in range(2):
+        seen = []
+        for batch in loader.epoch(epoch):
+            current = batch["tokens"][:, -1, 0, 0, 0].long()
+            seen += current.tolist()
+            # the window really is the T frames before the current one (clamped at the episode start)
+            starts = torch.as_tensor(labels.start)[current]
+            expect = torch.maximum(current[:, None] - torch.arange(T - 1, -1, -1), starts[:, None])
+            assert torch.equal(batch["tokens"][:, :, 0, 0, 0].long(), expect)
+        assert sorted(seen) == list(range(N))
+        orders.append(seen)
+    assert orders[0] != orders[1]
+    assert loader.max_chunks_in_ram == 1
+    assert len(rec.reads) == 2 * 3 and max(hi - lo for lo, hi in rec.reads) <= chunk + T - 1
+    assert len(loader) == sum(-(-n // 10) for n in (32, 32, 31))
+    again = ChunkWindowLoader(tokens, labels, T, 4, 10, [0, 1], seed=0, chunk_frames=chunk)
+    assert [b["tokens"][:, -1, 0, 0, 0].long().tolist() for b in again.epoch(0)] != []
+    assert sum((b["tokens"][:, -1, 0, 0, 0].long().tolist() for b in again.epoch(0)), []) == orders[0]
+
+
+def test_training_writes_checkpoints_and_log_and_a_killed_run_resumes_identically(tmp_path):
+    features, frames = write_stores(tmp_path)
+    policy = policy_settings(loss_weighting="u_shaped")
+    full = train(policy, 0, features, frames, tmp_path / "full", progress=False)
+    assert full["epoch"].to_list() == [1, 2, 3, 4]
+    assert set(full.columns) == {"epoch", "loss", "loss_joints", "loss_gripper", "lr", "seconds"}
+    assert full["loss"][-1] < full["loss"][0]
+    ckpts = sorted(p.name for p in (tmp_path / "full" / "checkpoints").iterdir())
+    assert ckpts == ["epoch_0002.pt", "epoch_0004.pt"]
+    assert not (tmp_path / "full" / ".train").exists()
+
+    class Killed(Exception):
+        pass
+
+    def kill_after_3(epoch):
+        if epoch == 3:
+            raise Killed
+
+    with pytest.raises(Killed):
+        train(policy, 0, features, frames, tmp_path / "resumed", progress=False, on_epoch_end=kill_after_3)
+    assert not (tmp_path / "resumed" / "train_log.parquet").exists()
+    resumed = train(policy, 0, features, frames, tmp_path / "resumed", progress=False)
+    assert resumed.drop("seconds").equals(full.drop("seconds"))
+    a = torch.load(tmp_path / "full" / "checkpoints" / "epoch_0004.pt", weights_only=False)
+    b = torch.load(tmp_path / "resumed" / "checkpoints" / "epoch_0004.pt", weights_only=False)
+    for k in a["model"]:
+        assert torch.equal(a["model"][k], b["model"][k]), k
+    assert pl.read_parquet(tmp_path / "resumed" / "train_log.parquet")["epoch"].to_list() == [1, 2, 3, 4]
+
+    model, stats, settings, meta = load_policy(tmp_path / "full" / "checkpoints" / "epoch_0004.pt")
+    assert settings == policy and meta["K"] == 7 and stats["action_std"].shape == (8,)
+    assert not model.training
+
+
+def test_changed_settings_discard_a_stale_resume_state(tmp_path):
+    features, frames = write_stores(tmp_path)
+    with pytest.raises(RuntimeError):
+        train(policy_settings(), 0, features, frames, tmp_path / "run", progress=False,
+              on_epoch_end=lambda e: (_ for _ in ()).throw(RuntimeError("killed")))
+    table = train(policy_settings(epochs=2, save_every=1), 0, features, frames, tmp_path / "run", progress=False)
+    assert table["epoch"].to_list() == [1, 2]

@@ -1,0 +1,29 @@
+# Policy training: one job per named experiment (config `experiments`, overrides of `policy`).
+from ocpipe import experiments as _exp
+
+
+def policy_of(w):
+    return _exp.resolve(config, w.exp)
+
+
+rule train:
+    input:
+        features=lambda w: f"results/features/{_exp.features_store(policy_of(w))}.zarr",
+        frames=lambda w: f"results/frames/{_exp.frames_store(policy_of(w))}.zarr",
+    output:
+        checkpoints=directory("results/runs/{exp}/checkpoints"),
+        log="results/runs/{exp}/train_log.parquet",
+    params:
+        policy=policy_of,
+        seed=config["seed"],
+    log:
+        "results/logs/train/{exp}.log",
+    benchmark:
+        "results/benchmarks/train/{exp}.tsv"
+    threads: config["compute"]["train"]
+    resources:
+        mem_mb=4000,
+    conda:
+        "../envs/ocpipe.yaml"
+    script:
+        "../scripts/train.py"

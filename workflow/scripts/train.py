@@ -1,0 +1,9 @@
+from pathlib import Path
+
+from ocpipe import runlog
+from ocpipe.policy import training
+
+with runlog.to_file(snakemake.log[0]):
+    table = training.train(snakemake.params.policy, snakemake.params.seed, snakemake.input.features,
+                           snakemake.input.frames, Path(snakemake.output.log).parent, threads=snakemake.threads)
+    print(table)
