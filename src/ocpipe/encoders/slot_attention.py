@@ -3,7 +3,7 @@
 
     layer_norm, mlp.{0,2}            input LayerNorm + MLP over the ViT features
     slots_init.weight [K, D]         learned per-slot initial queries (no sampling: same input, same slots)
-    slot_attention.norm_inputs       a second LayerNorm before the k/v projections
+    slot_attention.norm_inputs       a second LayerNorm before the k/v projections (optional: see slots_ssl)
     slot_attention.project_{q,k,v}   no bias
     slot_attention.gru               GRUCell(D, D)
     slot_attention.norm_slots, .norm_mlp, .mlp.{0,2}   residual MLP D -> hidden -> D
@@ -18,10 +18,11 @@ import torch.nn as nn
 
 
 class _Iterations(nn.Module):
-    def __init__(self, input_dim: int, slot_dim: int, mlp_hidden_dim: int, iterations: int, eps: float):
+    def __init__(self, input_dim: int, slot_dim: int, mlp_hidden_dim: int, iterations: int, eps: float,
+                 norm_inputs: bool):
         super().__init__()
         self.iterations, self.eps, self.slot_dim = iterations, eps, slot_dim
-        self.norm_inputs = nn.LayerNorm(input_dim)
+        self.norm_inputs = nn.LayerNorm(input_dim) if norm_inputs else nn.Identity()
         self.norm_slots = nn.LayerNorm(slot_dim)
         self.norm_mlp = nn.LayerNorm(slot_dim)
         self.project_q = nn.Linear(slot_dim, slot_dim, bias=False)
@@ -48,14 +49,14 @@ class _Iterations(nn.Module):
 
 class SlotAttention(nn.Module):
     def __init__(self, input_dim: int = 768, slot_dim: int = 256, num_slots: int = 7, iterations: int = 3,
-                 mlp_hidden_dim: int = 1024, eps: float = 1e-8):
+                 mlp_hidden_dim: int = 1024, eps: float = 1e-8, norm_inputs: bool = True):
         super().__init__()
         self.num_slots = num_slots
         self.layer_norm = nn.LayerNorm(input_dim)
         self.mlp = nn.Sequential(nn.Linear(input_dim, input_dim), nn.ReLU(), nn.Linear(input_dim, input_dim))
         self.slots_init = nn.Embedding(num_slots, slot_dim)
         nn.init.xavier_uniform_(self.slots_init.weight)
-        self.slot_attention = _Iterations(input_dim, slot_dim, mlp_hidden_dim, iterations, eps)
+        self.slot_attention = _Iterations(input_dim, slot_dim, mlp_hidden_dim, iterations, eps, norm_inputs)
 
     def forward(self, inputs: torch.Tensor, init_slots: torch.Tensor | None = None):
         """inputs (B, N, input_dim) -> slots (B, K, slot_dim), attention masks (B, K, N) summing to 1 over K."""

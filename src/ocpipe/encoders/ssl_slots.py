@@ -65,8 +65,11 @@ class SSLSlotEncoder(nn.Module):
         self.register_buffer("coords", _grid_coords(cfg.grid), persistent=False)
         self.pos = nn.Linear(4, d)
         self.colour = nn.Linear(3, d)  # raw colour as a direct input: it is the strongest object cue here
+        # no second LayerNorm before k/v (SPOT has one): on these colour-coded cells it normalizes away the
+        # colour contrast, and the cube lost its slot (held-out cube IoU 0.03 with it vs 0.17 without, 500 steps)
         self.slot_attention = SlotAttention(input_dim=d, slot_dim=cfg.slot_dim, num_slots=cfg.num_slots,
-                                            iterations=cfg.iterations, mlp_hidden_dim=4 * cfg.slot_dim)
+                                            iterations=cfg.iterations, mlp_hidden_dim=4 * cfg.slot_dim,
+                                            norm_inputs=False)
         # appearance of a slot: RGB + d(RGB)/dx + d(RGB)/dy
         self.appearance = nn.Sequential(nn.Linear(cfg.slot_dim, cfg.slot_dim), nn.ReLU(), nn.Linear(cfg.slot_dim, 9))
 
