@@ -221,6 +221,9 @@ def test_table5_1_end_to_end_and_identical_on_a_rerun(tiny_run, tmp_path):
     steps = pl.read_parquet(tiny_run / "results" / "runs" / "goal2d" / "stability" / "run_0.steps.parquet")
     assert {"action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos"} <= set(steps.columns)
     assert steps.group_by("seed").len()["len"].max() <= 12  # the episode cap
+    snakemake(tiny_run, "--configfile", "tiny.yaml", "--report", "report.html")
+    html = (tiny_run / "report.html").read_text()
+    assert all(name in html for name in ("table5_1.csv", "table5_2.csv", "fig5_1.png", "fig5_2.png", "fig5_3.png"))
     # the same config again, from trained policies on: identical tables
     copy = tmp_path / "again"
     shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("runs", "tables", "figures"))

@@ -82,7 +82,9 @@ class ClosedLoop:
     @torch.inference_mode()
     def _observe(self, obs) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:
         rgb = torch.stack([obs["sensor_data"][u]["rgb"][0] for u in self.uids])[None].cpu()
-        tokens = self.encoder.encode(rgb)[0][0][self.policy["cameras"]].float()
+        tokens = self.encoder.encode(rgb)[0][0][self.policy["cameras"]]
+        # the policy was trained on tokens as stored (float16 by default): round the same way
+        tokens = tokens.to(getattr(torch, self.meta.get("tokens_dtype", "float32"))).float()
         labels = sim.task_readouts(self.env)
         proprio = normalization.proprio(labels["qpos"][None], self.stats)[0]
         return tokens, proprio, self._goal(obs, labels["goal_pos"]), labels

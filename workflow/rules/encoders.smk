@@ -40,7 +40,7 @@ rule train_spot_slots_on_dino:
         "results/logs/train_spot_slots_on_dino.log",
     benchmark:
         "results/benchmarks/train_spot_slots_on_dino.tsv"
-    threads: workflow.cores
+    threads: config["compute"]["train_slots_ssl"]
     resources:
         mem_mb=12000,
     conda:

@@ -3,6 +3,14 @@
 from types import SimpleNamespace
 
 
+localrules:
+    best,
+    failures,
+    table5_1,
+    table5_2,
+    figures5_1_to_5_3,
+
+
 def eval_inputs(w):
     p = policy_of(w)
     return {

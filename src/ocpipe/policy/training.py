@@ -69,7 +69,7 @@ def load_data(policy: dict, features_path, frames_path, stats: dict | None = Non
     meta = {"K": int(tokens.shape[2]), "D": int(tokens.shape[3]), "features_store": str(features_path),
             "frames_store": str(frames_path), "encoder": feats.attrs.get("encoder"),
             "encoder_checkpoint_sha256": feats.attrs.get("checkpoint_sha256"),
-            "cameras": [frames.attrs["cameras"][c] for c in policy["cameras"]]}
+            "cameras": [frames.attrs["cameras"][c] for c in policy["cameras"]], "tokens_dtype": str(tokens.dtype)}
     return tokens, labels, stats, meta
 
 
