@@ -133,7 +133,8 @@ def main():
     thesis = {**policy, "width": 256, "layers": 8, "heads": 8}
     print(f"{'model':<28}{'params':>10}{'s/epoch':>10}  (batch {policy['batch_size']}, {args.threads} threads)")
     results = {}
-    for name, p in (("default (w128, 4 layers)", policy), ("thesis (w256, 8 layers)", thesis)):
+    label = lambda p: f"w{p['width']}, {p['layers']} layers"  # noqa: E731
+    for name, p in ((f"default ({label(policy)})", policy), (f"thesis ({label(thesis)})", thesis)):
         sec, n, total, params = seconds_per_epoch(p, features, frames, args.epoch_batches, args.threads)
         results[name] = sec
         print(f"{name:<28}{params:>10}{sec:>10.1f}  ({n} of {total} batches timed)")
