@@ -45,11 +45,11 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
         raise FileNotFoundError(f"{ckpt}: experiment {exp} saved no checkpoint at epoch {epoch}")
     import torch
 
+    from .policy.training import pick_device
+
     torch.set_num_threads(threads)
-    device = config["evaluation"]["device"]
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    loop = evaluation.ClosedLoop(ckpt, config, frames, encoder_ckpt or None, device=device)
+    loop = evaluation.ClosedLoop(ckpt, config, frames, encoder_ckpt or None,
+                                 device=pick_device(config["evaluation"]["device"]))
     try:
         seeds = seeds_for(kind, config["evaluation"], seed, run)
         episodes, steps = evaluation.run(loop, seeds, {"exp": exp, "checkpoint": epoch, "run": run}, progress)

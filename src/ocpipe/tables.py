@@ -6,6 +6,7 @@ import numpy as np
 import polars as pl
 
 from . import taxonomy
+from .atomic import atomic_path
 from .evaluation import success_rate
 
 TABLE5_2_CLASSES = ("Success", "Near Miss", "Drop", "No Grasp", "Idle", "Unknown")
@@ -58,7 +59,5 @@ def table5_2(methods: dict[str, pl.DataFrame]) -> pl.DataFrame:
 
 
 def write_csv(table: pl.DataFrame, path) -> None:
-    from .atomic import atomic_path
-
     with atomic_path(path) as tmp:
         table.write_csv(tmp, float_precision=4)

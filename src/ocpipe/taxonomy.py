@@ -55,12 +55,10 @@ def classify(steps: pl.DataFrame, success: bool, task: str, rules: dict) -> str:
 def classify_run(episodes: pl.DataFrame, steps: pl.DataFrame, task: str, rules: dict) -> pl.DataFrame:
     """One row per episode: its ids, failure class and (for the funnel) the milestones it reached."""
     keys = [c for c in ("exp", "checkpoint", "run", "seed") if c in episodes.columns]
-    by_episode = {k[0] if len(k) == 1 else k: g.sort("step")
-                  for k, g in steps.group_by(keys, maintain_order=True)}
+    by_episode = {k: g.sort("step") for k, g in steps.group_by(keys, maintain_order=True)}  # tuple keys
     rows = []
     for ep in episodes.iter_rows(named=True):
-        key = tuple(ep[k] for k in keys)
-        ep_steps = by_episode[key if len(key) > 1 else key[0]]
+        ep_steps = by_episode[tuple(ep[k] for k in keys)]
         rows.append({**{k: ep[k] for k in keys}, "trivial": ep["trivial"],
                      "class": classify(ep_steps, ep["success"], task, rules),
                      **milestones(ep_steps, ep["success"], rules)})

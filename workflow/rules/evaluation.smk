@@ -11,6 +11,10 @@ localrules:
     figures5_1_to_5_3,
 
 
+# the config sections an evaluation job's environment and encoder are built from
+EVAL_ENV_CFG = cfg("sim", "cameras", "camera_approx", "frames", "encoders")
+
+
 def eval_inputs(w):
     p = policy_of(w)
     return {
@@ -53,7 +57,7 @@ rule sweep:
         kind="sweep",
         policy=policy_of,
         evaluation=config["evaluation"],
-        cfg=lambda w: cfg("sim", "cameras", "camera_approx", "frames", "encoders"),
+        cfg=EVAL_ENV_CFG,
         seed=config["seed"],
     log:
         "results/logs/sweep/{exp}_epoch_{epoch}.log",
@@ -96,7 +100,7 @@ rule stability:
         kind="stability",
         policy=policy_of,
         evaluation=config["evaluation"],
-        cfg=lambda w: cfg("sim", "cameras", "camera_approx", "frames", "encoders"),
+        cfg=EVAL_ENV_CFG,
         seed=config["seed"],
     log:
         "results/logs/stability/{exp}_run_{run}.log",
@@ -122,7 +126,7 @@ rule failure_run:
         kind="failure_run",
         policy=policy_of,
         evaluation=config["evaluation"],
-        cfg=lambda w: cfg("sim", "cameras", "camera_approx", "frames", "encoders"),
+        cfg=EVAL_ENV_CFG,
         seed=config["seed"],
     log:
         "results/logs/failure_run/{exp}.log",

@@ -37,8 +37,9 @@ log = logging.getLogger(__name__)
 
 
 def pick_device(setting: str) -> torch.device:
+    """'auto' | 'cpu' | 'cuda' (policy.device, evaluation.device) -> the torch device to use."""
     if setting == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError("policy.device is 'cuda' but torch sees no CUDA device (use 'auto' or 'cpu')")
+        raise RuntimeError("device is 'cuda' but torch sees no CUDA device (use 'auto' or 'cpu')")
     return torch.device("cuda" if setting in ("auto", "cuda") and torch.cuda.is_available() else "cpu")
 
 
@@ -54,8 +55,8 @@ def goal_array(frames, policy: dict) -> np.ndarray:
     return goal
 
 
-def load_data(policy: dict, features_path, frames_path, stats: dict | None = None):
-    """-> (tokens zarr array, Labels, normalization stats, meta). ``stats`` given: reuse them (evaluation)."""
+def load_data(policy: dict, features_path, frames_path):
+    """-> (tokens zarr array, Labels, normalization stats computed from these frames, meta)."""
     feats, frames = open_features(features_path), open_store(frames_path)
     tokens = feats["tokens"]
     if tokens.shape[0] != frames["qpos"].shape[0]:
@@ -63,7 +64,7 @@ def load_data(policy: dict, features_path, frames_path, stats: dict | None = Non
     if max(policy["cameras"]) >= tokens.shape[1]:
         raise ValueError(f"policy.cameras {policy['cameras']}: {features_path} has {tokens.shape[1]} cameras")
     qpos, action = frames["qpos"][:].astype(np.float32), frames["action"][:].astype(np.float32)
-    stats = stats or normalization.compute(qpos, action, policy["proprio"])
+    stats = normalization.compute(qpos, action, policy["proprio"])
     labels = Labels.from_offsets(frames.attrs["episode_offsets"], normalization.proprio(qpos, stats),
                                  goal_array(frames, policy), normalization.action_to_model(action, stats))
     meta = {"K": int(tokens.shape[2]), "D": int(tokens.shape[3]), "features_store": str(features_path),
