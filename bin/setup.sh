@@ -43,7 +43,7 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     pip_install() { "$VENV/bin/pip" install -q --disable-pip-version-check "$@" 2> >(grep -v "is ignored: it is neither" >&2); }
     # torch first and pinned: an unpinned resolve would pull a multi-GB CUDA build on CPU-only machines
     pip_install "torch==2.13.0"
-    pip_install -e ".[test]"
+    pip_install -e ".[test,cluster]"
     touch "$stamp"
 fi
 echo "ocpipe setup: done ($VENV)"

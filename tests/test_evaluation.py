@@ -95,7 +95,7 @@ def test_trivial_successes_count_in_neither_numerator_nor_total():
 def test_table5_1_from_known_rows():
     runs = pl.concat([episodes(0, [True, False], [40, 100]), episodes(1, [True, True], [40, 60]),
                       episodes(2, [False, False, True], [100, 100, 4], trivial=[False, False, True])])
-    t = tables.table5_1({"2D": runs})
+    t = tables.build("table5_1", [tables.Row("2D", {}, {"stability": runs})])
     row = t.row(0, named=True)
     assert row["SR mean"] == pytest.approx(0.5)  # runs: 0.5, 1.0, 0.0
     assert row["SR std"] == pytest.approx(0.5)  # sample std of (0.5, 1, 0)
@@ -121,13 +121,15 @@ def test_best_checkpoint_prefers_sr_then_return(tmp_path):
     assert evaluation_jobs.best_checkpoint(files)["epoch"] == 20
 
 
-def test_report_writes_tables_from_run_files(tmp_path):
+def test_report_writes_tables_from_run_files(tmp_path, default_config):
     runs = tmp_path / "runs"
     for exp, succ in (("a", [True, False]), ("b", [True, True])):
         (runs / exp / "stability").mkdir(parents=True)
         for r in range(2):
             episodes(r, succ, [50, 80]).write_parquet(runs / exp / "stability" / f"run_{r}.episodes.parquet")
-    t = report.write_table5_1({"A": "a", "B": "b"}, tmp_path / "t.csv", tmp_path / "t.md", runs_dir=runs)
+    config = {**default_config, "experiments": {"a": {}, "b": {}}, "tables": {"table5_1": {"A": "a", "B": "b"}},
+              "evaluation": {**default_config["evaluation"], "stability_runs": 2}}
+    t = report.write_table(config, "table5_1", tmp_path / "t.csv", tmp_path / "t.md", runs_dir=runs)
     assert t["SR mean"].to_list() == [0.5, 1.0]
     assert pl.read_csv(tmp_path / "t.csv")["Method"].to_list() == ["A", "B"]
     assert "| A |" in (tmp_path / "t.md").read_text()

@@ -39,6 +39,21 @@ def test_merged_objects_lower_the_scores():
     assert scores["fg_ari_mean"] == pytest.approx(0.0) and scores["best_slot_iou_cube"] == pytest.approx(4 / 28)
 
 
+def test_separation_counts_an_object_whose_slot_also_takes_background_as_separate():
+    ids = np.zeros((2, 8, 8), int)
+    ids[:, 2:4, 2:4] = 1  # cube
+    ids[:, 5:8, :] = 2  # robot
+    pred = np.where(ids == 2, 2, 0)
+    pred[0][ids[0] == 1] = 1
+    pred[0, 0, :] = 1  # image 0: the cube's slot also takes a row of background (IoU 4/12), still its own
+    pred[1][ids[1] == 1] = 2  # image 1: cube and robot share a slot
+    named = {"cube": ids == 1, "robot": ids == 2}
+    s = SM.decomposition_scores(_one_hot(pred, 3), ids, ids > 0, named)
+    assert s["separate_cube_robot"] == pytest.approx(0.5)
+    assert s["own_slot_cube"] == pytest.approx(0.5) and s["own_slot_robot"] == pytest.approx(0.5)
+    assert s["best_slot_iou_cube"] == pytest.approx((4 / 12 + 4 / 28) / 2)
+
+
 def test_mask_diagnostics_on_disjoint_and_uniform_masks():
     disjoint = _one_hot(np.repeat(np.arange(4), 16).reshape(1, 8, 8), 4)
     d = SM.mask_diagnostics(disjoint)

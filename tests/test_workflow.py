@@ -32,7 +32,8 @@ TINY = {
 }
 
 TABLES = ["results/tables/table5_1.csv", "results/tables/table5_2.csv", "results/figures/fig5_1.png",
-          "results/figures/fig5_2.png", "results/figures/fig5_3.png"]
+          "results/figures/fig5_2.png", "results/figures/fig5_3.png",
+          "results/tables/table5_6.csv"]  # an ablation table end to end: fusion, with training-seed runs
 TRAINED = ["results/runs/goal2d/train_log.parquet"]
 
 
@@ -47,7 +48,7 @@ def snakemake(workdir, *args, check=True):
 def tiny_run(tmp_path_factory):
     work = tmp_path_factory.mktemp("tiny")
     (work / "tiny.yaml").write_text(yaml.safe_dump(TINY))
-    snakemake(work, "--configfile", "tiny.yaml", "--cores", "2", "all", *TABLES)
+    snakemake(work, "--configfile", "tiny.yaml", "--cores", "2", "encodings", *TABLES)
     return work
 
 
@@ -55,7 +56,7 @@ def test_dry_run_lists_the_dag_on_the_default_config(tmp_path):
     out = snakemake(tmp_path, "-n", "--cores", "2").stdout
     for rule in ("demos_shard", "demos_merge", "frames_shard", "frames_merge", "frames_report", "train_slots_ssl",
                  "features", "features_diagnostics", "attention_maps", "train", "sweep", "best", "stability",
-                 "failures", "table5_1", "table5_2", "figures5_1_to_5_3"):
+                 "failures", "table", "figures5_1_to_5_3"):
         assert f"rule {rule}:" in out
     assert "results/frames/PickCube-v1_dual_128.zarr" in out
 
@@ -209,6 +210,47 @@ def test_changing_one_experiment_reruns_only_its_jobs(tiny_run):
     assert "rule features:" not in out and "rule frames_shard:" not in out
 
 
+def test_fusion_table_end_to_end_with_training_seed_runs(tiny_run):
+    import polars as pl
+
+    t = pl.read_csv(tiny_run / "results" / "tables" / "table5_6.csv")
+    assert t["Method"].to_list() == ["Concatenation", "Cross-attention"]
+    assert t["Fusion"].to_list() == ["concat", "cross_attention"]
+    assert t["Training-seed SR"].is_between(0, 1).all() and t["Held-out SR"].is_between(0, 1).all()
+    seeds = pl.read_parquet(tiny_run / "results" / "runs" / "fusion_cross_attention" / "train_seeds.episodes.parquet")
+    demo_seeds = frames_store.open_store(tiny_run / "results" / "frames" / "PickCube-v1_dual_64.zarr").attrs[
+        "episode_seeds"]
+    assert set(seeds["seed"].to_list()) <= set(demo_seeds)
+
+
+def test_dry_run_of_all_audits_the_whole_study_on_both_configs(tmp_path):
+    default = snakemake(tmp_path, "-n", "all").stdout
+    thesis = snakemake(tmp_path, "-n", "all", "--configfile", str(REPO / "config" / "thesis.yaml")).stdout
+    for out in (default, thesis):
+        for n in range(1, 12):
+            assert f"results/tables/table5_{n}.csv" in out
+        for fig in ("fig5_1", "fig5_5", "fig5_6", "fig5_7", "attention_StackCube-v1_native_128_slots_ssl"):
+            assert f"results/figures/{fig}.png" in out
+        assert "wildcards: exp=stack_native" in out and "wildcards: exp=window40" in out
+        assert "wildcards: exp=dino_cls" not in out  # no weights given: the row says so instead
+    assert "results/frames/StackCube-v1_dual_224" in thesis and "results/frames/StackCube-v1_dual_224" not in default
+
+
+def test_given_dino_weights_bring_the_dino_rows_into_the_graph(tmp_path):
+    (tmp_path / "dino.pth").write_bytes(b"placeholder: a dry run only checks that the file exists")
+    (tmp_path / "weights.yaml").write_text(yaml.safe_dump({"encoders": {"dino": {"checkpoint": "dino.pth"}}}))
+    out = snakemake(tmp_path, "-n", "results/tables/table5_4.csv", "--configfile", "weights.yaml").stdout
+    for exp in ("dino_cls", "dino_grid4", "dino_dense"):
+        assert f"wildcards: exp={exp}" in out
+    assert "results/features/PickCube-v1_dual_128_dino_dense.zarr" in out and "exp=spot" not in out
+
+
+@pytest.mark.parametrize("profile", ["local", "slurm"])
+def test_profiles_parse_and_plan(tmp_path, profile):
+    out = snakemake(tmp_path, "--profile", str(REPO / "config" / "profiles" / profile), "-n", "spatial_grounding")
+    assert "rule train:" in out.stdout and "Job stats" in out.stdout
+
+
 def test_table5_1_end_to_end_and_identical_on_a_rerun(tiny_run, tmp_path):
     import polars as pl
 
@@ -228,5 +270,5 @@ def test_table5_1_end_to_end_and_identical_on_a_rerun(tiny_run, tmp_path):
     copy = tmp_path / "again"
     shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("runs", "tables", "figures"))
     snakemake(copy, "--configfile", "tiny.yaml", "--cores", "2", *TABLES)
-    for name in ("table5_1.csv", "table5_2.csv"):
+    for name in ("table5_1.csv", "table5_2.csv", "table5_6.csv"):
         assert (copy / "results" / "tables" / name).read_text() == (tiny_run / "results" / "tables" / name).read_text()

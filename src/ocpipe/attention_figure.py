@@ -30,7 +30,9 @@ def attention_maps(frames_path: str | Path, features_path: str | Path, pairs: li
     offsets, cams = fa["episode_offsets"], fa["cameras"]
     K = feats["masks"].shape[2]
     rows = [(t, s, c) for t, s in pairs for c in range(len(cams))]
-    fig, axes = plt.subplots(len(rows), K + 1, figsize=(1.3 * (K + 1), 1.4 * len(rows)), squeeze=False)
+    # column 1: every cell coloured by its argmax slot, so which objects share a slot is visible at a glance
+    palette = plt.get_cmap("tab10")(np.arange(K) % 10)[:, :3]
+    fig, axes = plt.subplots(len(rows), K + 2, figsize=(1.3 * (K + 2), 1.4 * len(rows)), squeeze=False)
     for r, (traj, step, c) in enumerate(rows):
         if not 0 <= traj < len(offsets) - 1:
             raise ValueError(f"trajectory {traj} not in {frames_path} ({len(offsets) - 1} episodes)")
@@ -44,12 +46,15 @@ def attention_maps(frames_path: str | Path, features_path: str | Path, pairs: li
         masks = feats["masks"][i, c].astype(np.float32)
         axes[r, 0].imshow(img)
         axes[r, 0].set_ylabel(f"traj {traj} t={step}\n{cams[c]}", fontsize=6)
+        extent = (-0.5, img.shape[1] - 0.5, img.shape[0] - 0.5, -0.5)
+        axes[r, 1].imshow(palette[masks.argmax(0)], extent=extent)
         for k in range(K):
-            axes[r, k + 1].imshow(img, alpha=0.35)
-            axes[r, k + 1].imshow(masks[k], cmap="magma", vmin=0, vmax=1, alpha=0.75,
-                                  extent=(-0.5, img.shape[1] - 0.5, img.shape[0] - 0.5, -0.5))
+            axes[r, k + 2].imshow(img, alpha=0.35)
+            axes[r, k + 2].imshow(masks[k], cmap="magma", vmin=0, vmax=1, alpha=0.75, extent=extent)
             if r == 0:
-                axes[r, k + 1].set_title(f"slot {k}", fontsize=7)
+                axes[r, k + 2].set_title(f"slot {k}", fontsize=7, color=palette[k])
+        if r == 0:
+            axes[r, 1].set_title("argmax slot", fontsize=7)
     for ax in axes.flat:
         ax.set_xticks([]), ax.set_yticks([])
     fig.suptitle(f"{fa['task']} — {feats.attrs['encoder']} slot attention", fontsize=8)

@@ -5,22 +5,34 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import polars as pl
 
 from . import evaluation
 from .atomic import atomic_path, write_json
+from .frames_store import open_store
 
 # random streams for sample_seeds: (root seed, purpose[, run])
-SWEEP, STABILITY, FAILURE_RUN = 0, 1, 2
+SWEEP, STABILITY, FAILURE_RUN, TRAIN_SEEDS = 0, 1, 2, 3
 
 
-def seeds_for(kind: str, evaluation_cfg: dict, seed: int, run: int = 0) -> list[int]:
+def training_seeds(evaluation_cfg: dict, episode_seeds: list[int], seed: int) -> list[int]:
+    """Seeds of demos the policy was trained on (Table 5.6's training-seed SR), as many as a stability run."""
+    n = min(evaluation_cfg["stability_episodes"], len(episode_seeds))
+    rng = np.random.default_rng([seed, TRAIN_SEEDS])
+    return sorted(int(s) for s in rng.choice(np.asarray(episode_seeds), size=n, replace=False))
+
+
+def seeds_for(kind: str, evaluation_cfg: dict, seed: int, run: int = 0,
+              episode_seeds: list[int] | None = None) -> list[int]:
     if kind == "sweep":  # every checkpoint and experiment sees the same episodes: comparisons are paired
         return evaluation.sample_seeds(evaluation_cfg, evaluation_cfg["sweep_episodes"], seed, SWEEP)
     if kind == "stability":
         return evaluation.sample_seeds(evaluation_cfg, evaluation_cfg["stability_episodes"], seed, STABILITY, run)
     if kind == "failure_run":
         return evaluation.sample_seeds(evaluation_cfg, evaluation_cfg["failure_episodes"], seed, FAILURE_RUN)
+    if kind == "train_seeds":
+        return training_seeds(evaluation_cfg, episode_seeds or [], seed)
     raise ValueError(f"unknown evaluation kind {kind!r}")
 
 
@@ -51,7 +63,8 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
     loop = evaluation.ClosedLoop(ckpt, config, frames, encoder_ckpt or None,
                                  device=pick_device(config["evaluation"]["device"]))
     try:
-        seeds = seeds_for(kind, config["evaluation"], seed, run)
+        episode_seeds = list(open_store(frames).attrs["episode_seeds"]) if kind == "train_seeds" else None
+        seeds = seeds_for(kind, config["evaluation"], seed, run, episode_seeds)
         episodes, steps = evaluation.run(loop, seeds, {"exp": exp, "checkpoint": epoch, "run": run}, progress)
     finally:
         loop.close()

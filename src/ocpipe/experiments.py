@@ -40,3 +40,18 @@ def problems(policy: dict) -> list[str]:
     if policy["goal"] == "2d" and policy["cams"] == "native" and policy["goal_calibration"] == "approx":
         out.append(f"  {key}.goal_calibration: the hand camera moves, so 'approx' 2d goals exist only for cams 'dual'")
     return out
+
+
+def missing_weights(config: dict, policy: dict) -> str | None:
+    """Why an experiment cannot run offline (its encoder needs weight files config does not give), or None.
+
+    Tables show this in the experiment's row instead of failing the whole target."""
+    enc = policy["encoder"]
+    if enc == "spot":
+        spot = config["encoders"]["spot"]
+        if not (spot["checkpoint"] or spot["dino_checkpoint"]):
+            return ("needs weights: set encoders.spot.checkpoint (SPOT checkpoint.pt.tar) or "
+                    "encoders.spot.dino_checkpoint (dino_vitbase16_pretrain.pth)")
+    elif enc.startswith("dino_") and not config["encoders"]["dino"]["checkpoint"]:
+        return "needs weights: set encoders.dino.checkpoint (dino_vitbase16_pretrain.pth)"
+    return None

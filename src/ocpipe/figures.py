@@ -11,7 +11,7 @@ import polars as pl  # noqa: E402
 
 from .atomic import atomic_path  # noqa: E402
 from .tables import TABLE5_2_CLASSES, stability_summary  # noqa: E402
-from .taxonomy import counts  # noqa: E402
+from .taxonomy import FUNNEL, counts, funnel as funnel_counts  # noqa: E402
 
 
 def _save(fig, path) -> None:
@@ -52,7 +52,7 @@ def fig5_2(stability: dict[str, pl.DataFrame], path) -> None:
     _save(fig, path)
 
 
-def fig5_3(classes: dict[str, pl.DataFrame], path) -> None:
+def fig5_3(classes: dict[str, pl.DataFrame], path, title: str = "Failure distribution") -> None:
     """Failure-class counts per method (grouped bars)."""
     methods = list(classes)
     c = {m: counts(classes[m]) for m in methods}
@@ -63,7 +63,38 @@ def fig5_3(classes: dict[str, pl.DataFrame], path) -> None:
     for i, m in enumerate(methods):
         ax.bar(x + i * width, [c[m].get(n, 0) for n in names], width, label=m, color=f"C{i}")
     ax.set_xticks(x + width * (len(methods) - 1) / 2, names)
-    ax.set(ylabel="episodes", title="Failure distribution")
+    ax.set(ylabel="episodes", title=title)
+    ax.legend()
+    ax.grid(axis="y", alpha=0.3)
+    _save(fig, path)
+
+
+def sr_bars(rows, path, title: str) -> None:
+    """Held-out SR (mean ± std over stability runs) per table row; rows without results say why."""
+    fig, ax = plt.subplots(figsize=(1.6 * len(rows) + 2, 4))
+    for i, row in enumerate(rows):
+        if row.status:
+            ax.text(i, 0.02, row.status.replace(": ", ":\n", 1), rotation=90, ha="center", va="bottom", fontsize=7,
+                    color="grey")
+            continue
+        s = stability_summary(row.data["stability"])
+        ax.bar(i, s["sr_mean"], yerr=np.nan_to_num(s["sr_std"]), capsize=6, color=f"C{i}")
+    ax.set_xticks(range(len(rows)), [r.label for r in rows], rotation=15, ha="right")
+    ax.set(ylabel="success rate", ylim=(0, 1), title=title)
+    ax.grid(axis="y", alpha=0.3)
+    _save(fig, path)
+
+
+def funnel(classes: dict[str, pl.DataFrame], path) -> None:
+    """StackCube sub-task funnel: episodes reaching grasp -> lift -> near target -> success, per method."""
+    stages = list(FUNNEL)
+    width = 0.8 / max(1, len(classes))
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for i, (method, c) in enumerate(classes.items()):
+        f = funnel_counts(c)
+        ax.bar(np.arange(len(stages)) + i * width, [f[s] for s in stages], width, label=method, color=f"C{i}")
+    ax.set_xticks(np.arange(len(stages)) + width * (len(classes) - 1) / 2, stages)
+    ax.set(ylabel="episodes reaching the stage", title="StackCube sub-task funnel")
     ax.legend()
     ax.grid(axis="y", alpha=0.3)
     _save(fig, path)

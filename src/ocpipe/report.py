@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import polars as pl
 
-from . import figures, tables, taxonomy
+from . import figures, study, tables, taxonomy
 from .atomic import atomic_path
+from .encoders.registry import tokens_per_camera
+from .experiments import resolve
 
 
 def _read(files) -> pl.DataFrame:
@@ -48,17 +51,6 @@ def _write(table: pl.DataFrame, csv_path, md_path, title: str) -> pl.DataFrame:
     return table
 
 
-def write_table5_1(rows: dict[str, str], csv_path, md_path, runs_dir="results/runs") -> pl.DataFrame:
-    table = tables.table5_1({label: _runs(exp, runs_dir) for label, exp in rows.items()})
-    return _write(table, csv_path, md_path, "Table 5.1: spatial grounding (held-out SR, mean episode length)")
-
-
-def write_table5_2(rows: dict[str, str], csv_path, md_path, runs_dir="results/runs") -> pl.DataFrame:
-    table = tables.table5_2({label: pl.read_parquet(Path(runs_dir) / exp / "failures.parquet")
-                             for label, exp in rows.items()})
-    return _write(table, csv_path, md_path, "Table 5.2: failure distribution")
-
-
 def write_figures5_1_to_5_3(rows: dict[str, str], fig5_1, fig5_2, fig5_3, runs_dir="results/runs") -> None:
     runs = Path(runs_dir)
     figures.fig5_1({m: pl.read_parquet(runs / e / "train_log.parquet") for m, e in rows.items()},
@@ -66,3 +58,57 @@ def write_figures5_1_to_5_3(rows: dict[str, str], fig5_1, fig5_2, fig5_3, runs_d
                    fig5_1)
     figures.fig5_2({m: _runs(e, runs_dir) for m, e in rows.items()}, fig5_2)
     figures.fig5_3({m: pl.read_parquet(runs / e / "failures.parquet") for m, e in rows.items()}, fig5_3)
+
+
+def _checkpoint_facts(checkpoints_dir) -> dict:
+    import torch
+
+    last = sorted(Path(checkpoints_dir).glob("epoch_*.pt"))[-1]
+    state = torch.load(last, map_location="cpu", weights_only=False)["model"]
+    return {"parameters": int(sum(v.numel() for v in state.values())), "sequence_length": int(state["pos"].shape[0])}
+
+
+def _load(need: str, files: list[str]):
+    if need in ("stability", "sweep"):
+        return _read(files)
+    if need == "checkpoints":
+        return _checkpoint_facts(files[0])
+    if need == "best":
+        return json.loads(Path(files[0]).read_text())
+    return pl.read_parquet(files[0])
+
+
+def table_rows(config: dict, table: str, needs=None, runs_dir="results/runs") -> list[tables.Row]:
+    """The rows of a table (or of a figure drawing a table's rows), each with the artefacts it reads."""
+    skip = study.unavailable(config, table)
+    out = []
+    for label, exp in study.rows(config, table).items():
+        policy = resolve(config, exp)
+        row = tables.Row(label, policy, status=skip.get(label),
+                         visual_tokens=len(policy["cameras"]) * tokens_per_camera(policy["encoder"], config["encoders"]))
+        if row.status is None:
+            row.data = {need: _load(need, study.artefacts(config, exp, need, runs_dir))
+                        for need in (study.NEEDS[table] if needs is None else needs)}
+        out.append(row)
+    return out
+
+
+def write_table(config: dict, table: str, csv_path, md_path, runs_dir="results/runs") -> pl.DataFrame:
+    rows = table_rows(config, table, runs_dir=runs_dir)
+    if study.NEEDS[table] == ("failures",):
+        frame = tables.table5_2({r.label: r.data["failures"] for r in rows if r.status is None})
+    else:
+        frame = tables.build(table, rows)
+    return _write(frame, csv_path, md_path, study.TITLES[table])
+
+
+def write_figure(config: dict, figure: str, out_png, runs_dir="results/runs") -> None:
+    table, needs = study.FIGURES[figure]
+    rows = table_rows(config, table, needs, runs_dir)
+    if figure == "fig5_5":
+        figures.sr_bars(rows, out_png, "Success rate by visual representation (mean ± std over stability runs)")
+    elif figure == "fig5_6":
+        figures.fig5_3({r.label: r.data["failures"] for r in rows if r.status is None}, out_png,
+                       title="Failure distribution by loss weighting")
+    else:
+        figures.funnel({r.label: r.data["failures"] for r in rows if r.status is None}, out_png)

@@ -66,7 +66,12 @@ def decomposition_scores(masks: np.ndarray, object_ids: np.ndarray, foreground: 
     foreground (M, h, w) bool; named: object name -> (M, h, w) bool mask.
 
     FG-ARI is computed per image over foreground cells with the argmax slot as the prediction; best-slot IoU of
-    an object is, per image where it is visible, the highest IoU between its mask and any slot's argmax region."""
+    an object is, per image where it is visible, the highest IoU between its mask and any slot's argmax region.
+
+    Separation: an object's *slot* in an image is the slot most of its cells are assigned to. ``own_slot_{name}`` is
+    the fraction of images (where it is visible) in which that slot is neither the background's nor any other
+    visible named object's; ``separate_{a}_{b}`` the fraction of images with both visible where their slots differ.
+    These say whether objects are told apart even where a slot also takes part of the background (low IoU)."""
     pred = masks.argmax(axis=1)  # (M, h, w)
     aris = [adjusted_rand_index(object_ids[m][foreground[m]], pred[m][foreground[m]])
             for m in range(len(pred)) if foreground[m].sum() > 1 and len(np.unique(object_ids[m][foreground[m]])) > 1]
@@ -85,4 +90,23 @@ def decomposition_scores(masks: np.ndarray, object_ids: np.ndarray, foreground: 
             ious.append(best)
         out[f"best_slot_iou_{name}"] = float(np.mean(ious)) if ious else None
         out[f"best_slot_iou_{name}_images"] = len(ious)
+    out.update(_separation(pred, ~foreground, named, K))
+    return out
+
+
+def _separation(pred: np.ndarray, background: np.ndarray, named: dict[str, np.ndarray], K: int) -> dict:
+    def majority(m, region):
+        return int(np.bincount(pred[m][region], minlength=K).argmax()) if region.any() else None
+
+    names = list(named)
+    slots = [{n: majority(m, named[n][m]) for n in names} | {"_bg": majority(m, background[m])}
+             for m in range(len(pred))]
+    out = {}
+    for n in names:
+        own = [all(v is None or v != s[n] for k, v in s.items() if k != n) for s in slots if s[n] is not None]
+        out[f"own_slot_{n}"] = float(np.mean(own)) if own else None
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            sep = [s[a] != s[b] for s in slots if s[a] is not None and s[b] is not None]
+            out[f"separate_{a}_{b}"] = float(np.mean(sep)) if sep else None
     return out

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 import polars as pl
 
@@ -30,18 +32,6 @@ def stability_summary(episodes: pl.DataFrame) -> dict:
             "trivial_excluded": int(episodes["trivial"].sum())}
 
 
-def table5_1(methods: dict[str, pl.DataFrame]) -> pl.DataFrame:
-    """methods: Method -> its stability episodes (all runs)."""
-    rows = []
-    for method, eps in methods.items():
-        s = stability_summary(eps)
-        rows.append({"Method": method, "SR mean": s["sr_mean"], "SR std": s["sr_std"],
-                     "Episode length mean": s["length_mean"], "Episode length std": s["length_std"],
-                     "Episodes per run": s["episodes_per_run"], "Runs": s["runs"],
-                     "Trivial excluded": s["trivial_excluded"]})
-    return pl.DataFrame(rows)
-
-
 def table5_2(methods: dict[str, pl.DataFrame]) -> pl.DataFrame:
     """methods: Method -> its per-episode failure classes. Counts and % of non-trivial episodes."""
     rows = []
@@ -61,3 +51,71 @@ def table5_2(methods: dict[str, pl.DataFrame]) -> pl.DataFrame:
 def write_csv(table: pl.DataFrame, path) -> None:
     with atomic_path(path) as tmp:
         table.write_csv(tmp, float_precision=4)
+
+
+@dataclass
+class Row:
+    """One table row: an experiment's settings and the artefacts its table reads (empty when it cannot run)."""
+
+    label: str
+    policy: dict
+    data: dict = field(default_factory=dict)
+    status: str | None = None  # why the row has no results (weights not given)
+    visual_tokens: int | None = None  # per timestep, all cameras
+
+
+def _stability(row: Row) -> dict:
+    if row.status:
+        return {"SR mean": None, "SR std": None, "Episode length mean": None, "Episode length std": None}
+    s = stability_summary(row.data["stability"])
+    return {"SR mean": s["sr_mean"], "SR std": s["sr_std"], "Episode length mean": s["length_mean"],
+            "Episode length std": s["length_std"]}
+
+
+def _minutes_per_epoch(row: Row):
+    return None if row.status else float(row.data["train_log"]["seconds"].mean()) / 60.0
+
+
+def _columns(table: str, row: Row) -> dict:
+    p = row.policy
+    if table == "table5_3":
+        return {"Calibration": p["goal_calibration"], "Resolution": p["resolution"], **_stability(row)}
+    if table == "table5_4":
+        return {"Encoder": p["encoder"], "Visual tokens": row.visual_tokens, "T": p["window"], "H": p["horizon"],
+                "Batch": p["batch_size"], "Minutes/epoch": _minutes_per_epoch(row), **_stability(row)}
+    if table == "table5_5":
+        return {"Head": p["visual_head"], "Parameters": None if row.status else row.data["checkpoints"]["parameters"],
+                **_stability(row)}
+    if table == "table5_6":
+        s = _stability(row)
+        train_sr = None if row.status else success_rate(row.data["train_seeds"])
+        gap = None if train_sr is None or s["SR mean"] is None else train_sr - s["SR mean"]
+        return {"Fusion": p["fusion"], "Training-seed SR": train_sr, "Held-out SR": s["SR mean"],
+                "Held-out SR std": s["SR std"], "Gap": gap}
+    if table == "table5_7":
+        best = {} if row.status else row.data["best"]
+        peak = next((r["mean_return"] for r in best.get("sweep", []) if r["checkpoint"] == best["epoch"]), None)
+        seq = None if row.status else row.data["checkpoints"]["sequence_length"]
+        return {"T": p["window"], "Sequence length": seq, "Minutes/epoch": _minutes_per_epoch(row), "Epochs": p["epochs"], "Best epoch": best.get("epoch"),
+                "Reward at peak": peak, **_stability(row)}
+    if table == "table5_8":
+        return {"Proprio": p["proprio"], **_stability(row)}
+    if table == "table5_9":
+        return {"Loss weighting": p["loss_weighting"], **_stability(row)}
+    return _stability(row)  # 5.1, 5.10
+
+
+def build(table: str, rows: list[Row]) -> pl.DataFrame:
+    """Tables 5.1 and 5.3-5.10 (5.2 and 5.11, failure distributions, come from table5_2)."""
+    out = []
+    for row in rows:
+        r = {"Method": row.label, **_columns(table, row)}
+        if row.status is None and "stability" in row.data:
+            s = stability_summary(row.data["stability"])
+            r |= {"Episodes per run": s["episodes_per_run"], "Runs": s["runs"],
+                  "Trivial excluded": s["trivial_excluded"]}
+        out.append(r)
+    frame = pl.DataFrame(out, infer_schema_length=None)
+    if any(r.status for r in rows):
+        frame = frame.with_columns(pl.Series("Status", [r.status or "ok" for r in rows]))
+    return frame

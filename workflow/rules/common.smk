@@ -15,6 +15,17 @@ def cfg(*sections):
     return {s: config[s] for s in sections}
 
 
+def threads_of(stage):
+    return config["compute"][stage]["threads"]
+
+
+def resources_of(stage):
+    """A stage's cluster resources from config `compute` (gpu only where asked for, so CPU-only runs stay
+    schedulable everywhere)."""
+    c = config["compute"][stage]
+    return {k: v for k, v in c.items() if k != "threads" and not (k == "gpu" and not v)}
+
+
 def demo_params():
     """Demo jobs read the evaluation pool only to keep demo seeds out of it: pass just its bounds, so changing
     other evaluation settings never regenerates demos."""
@@ -35,11 +46,25 @@ def frames_targets():
     return [f"results/frames/{s}{ext}" for s in frames_stores() for ext in (".zarr", ".report.json", ".contact.png")]
 
 
+def _features_outputs(store, enc):
+    out = [f"results/features/{store}_{enc}.zarr", f"results/features/{store}_{enc}.diagnostics.json"]
+    return out + ([f"results/figures/attention_{store}_{enc}.png"] if enc in ("slots_ssl", "spot") else [])
+
+
 def features_targets(encoders=("slots_ssl",)):
     """Features stores of the default encoder(s), with their diagnostics and attention maps."""
+    return [f for store in frames_stores() for enc in encoders for f in _features_outputs(store, enc)]
+
+
+def experiment_encoding_targets():
+    """Frames and features stores (with diagnostics and attention maps) of every experiment a table can run."""
+    from ocpipe import experiments, study
+
     out = []
-    for store in frames_stores():
-        for enc in encoders:
-            out += [f"results/features/{store}_{enc}.zarr", f"results/features/{store}_{enc}.diagnostics.json"]
-            out += [f"results/figures/attention_{store}_{enc}.png"] if enc in ("slots_ssl", "spot") else []
+    for exp in study.experiments_of(config):
+        p = experiments.resolve(config, exp)
+        store = experiments.frames_store(p)
+        for f in [f"results/frames/{store}.report.json", *_features_outputs(store, p["encoder"])]:
+            if f not in out:
+                out.append(f)
     return out

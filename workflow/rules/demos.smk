@@ -14,9 +14,9 @@ if config["demos"]["source"] == "motionplanning":
             "results/logs/demos_shard/{task}_shard{shard}.log",
         benchmark:
             "results/benchmarks/demos_shard/{task}_shard{shard}.tsv"
-        threads: 1
+        threads: threads_of("demos")
         resources:
-            mem_mb=2000,
+            **resources_of("demos"),
         conda:
             "../envs/ocpipe.yaml"
         script:
@@ -34,7 +34,9 @@ if config["demos"]["source"] == "motionplanning":
             "results/logs/demos_merge/{task}.log",
         benchmark:
             "results/benchmarks/demos_merge/{task}.tsv"
-        threads: 1
+        threads: threads_of("light")
+        resources:
+            **resources_of("light"),
         conda:
             "../envs/ocpipe.yaml"
         script:
@@ -56,7 +58,9 @@ else:
             "results/logs/demos_import/{task}.log",
         benchmark:
             "results/benchmarks/demos_import/{task}.tsv"
-        threads: 1
+        threads: threads_of("light")
+        resources:
+            **resources_of("light"),
         conda:
             "../envs/ocpipe.yaml"
         script:

@@ -16,9 +16,9 @@ rule train_slots_ssl:
         "results/logs/train_slots_ssl.log",
     benchmark:
         "results/benchmarks/train_slots_ssl.tsv"
-    threads: config["compute"]["train_slots_ssl"]
+    threads: threads_of("train_slots_ssl")
     resources:
-        mem_mb=6000,
+        **resources_of("train_slots_ssl"),
     conda:
         "../envs/ocpipe.yaml"
     script:
@@ -40,9 +40,9 @@ rule train_spot_slots_on_dino:
         "results/logs/train_spot_slots_on_dino.log",
     benchmark:
         "results/benchmarks/train_spot_slots_on_dino.tsv"
-    threads: config["compute"]["train_slots_ssl"]
+    threads: threads_of("train_spot_slots")
     resources:
-        mem_mb=12000,
+        **resources_of("train_spot_slots"),
     conda:
         "../envs/ocpipe.yaml"
     script:

@@ -2,17 +2,29 @@
 # runs (one job each), failure classification (SPEC section 9), and Table 5.1 / 5.2 with figures 5.1-5.3.
 from types import SimpleNamespace
 
+from ocpipe import study
+
 
 localrules:
     best,
     failures,
-    table5_1,
-    table5_2,
+    table,
+    figure,
     figures5_1_to_5_3,
 
 
-# the config sections an evaluation job's environment and encoder are built from
-EVAL_ENV_CFG = cfg("sim", "cameras", "camera_approx", "frames", "encoders")
+# what tables and figures read from config: their rows and the settings those rows' experiments resolve to
+TABLE_CFG = cfg("tables", "experiments", "policy", "encoders", "evaluation")
+
+
+# what every evaluation job reads: its policy, the protocol, and the config sections its environment and encoder
+# are built from
+EVAL_PARAMS = {
+    "policy": policy_of,
+    "evaluation": config["evaluation"],
+    "cfg": cfg("sim", "cameras", "camera_approx", "frames", "encoders"),
+    "seed": config["seed"],
+}
 
 
 def eval_inputs(w):
@@ -42,7 +54,7 @@ def failure_inputs(exp):
 
 
 def table_rows(table):
-    return config["tables"][table]
+    return study.rows(config, table)
 
 
 rule sweep:
@@ -54,18 +66,15 @@ rule sweep:
     wildcard_constraints:
         epoch=r"\d{4}",
     params:
+        **EVAL_PARAMS,
         kind="sweep",
-        policy=policy_of,
-        evaluation=config["evaluation"],
-        cfg=EVAL_ENV_CFG,
-        seed=config["seed"],
     log:
         "results/logs/sweep/{exp}_epoch_{epoch}.log",
     benchmark:
         "results/benchmarks/sweep/{exp}_epoch_{epoch}.tsv"
-    threads: config["compute"]["evaluate"]
+    threads: threads_of("evaluate")
     resources:
-        mem_mb=3000,
+        **resources_of("evaluate"),
     conda:
         "../envs/ocpipe.yaml"
     script:
@@ -81,13 +90,16 @@ rule best:
         "results/logs/best/{exp}.log",
     benchmark:
         "results/benchmarks/best/{exp}.tsv"
+    threads: threads_of("light")
+    resources:
+        **resources_of("light"),
     conda:
         "../envs/ocpipe.yaml"
     script:
         "../scripts/best.py"
 
 
-rule stability:
+use rule sweep as stability with:
     input:
         unpack(eval_inputs),
         best="results/runs/{exp}/best.json",
@@ -97,48 +109,38 @@ rule stability:
     wildcard_constraints:
         run=r"\d+",
     params:
+        **EVAL_PARAMS,
         kind="stability",
-        policy=policy_of,
-        evaluation=config["evaluation"],
-        cfg=EVAL_ENV_CFG,
-        seed=config["seed"],
     log:
         "results/logs/stability/{exp}_run_{run}.log",
     benchmark:
         "results/benchmarks/stability/{exp}_run_{run}.tsv"
-    threads: config["compute"]["evaluate"]
-    resources:
-        mem_mb=3000,
-    conda:
-        "../envs/ocpipe.yaml"
-    script:
-        "../scripts/evaluate.py"
 
 
-rule failure_run:
-    input:
-        unpack(eval_inputs),
-        best="results/runs/{exp}/best.json",
+use rule stability as failure_run with:
     output:
         episodes="results/runs/{exp}/failure_run.episodes.parquet",
         steps="results/runs/{exp}/failure_run.steps.parquet",
     params:
+        **EVAL_PARAMS,
         kind="failure_run",
-        policy=policy_of,
-        evaluation=config["evaluation"],
-        cfg=EVAL_ENV_CFG,
-        seed=config["seed"],
     log:
         "results/logs/failure_run/{exp}.log",
     benchmark:
         "results/benchmarks/failure_run/{exp}.tsv"
-    threads: config["compute"]["evaluate"]
-    resources:
-        mem_mb=3000,
-    conda:
-        "../envs/ocpipe.yaml"
-    script:
-        "../scripts/evaluate.py"
+
+
+use rule stability as train_seed_run with:
+    output:
+        episodes="results/runs/{exp}/train_seeds.episodes.parquet",
+        steps="results/runs/{exp}/train_seeds.steps.parquet",
+    params:
+        **EVAL_PARAMS,
+        kind="train_seeds",
+    log:
+        "results/logs/train_seed_run/{exp}.log",
+    benchmark:
+        "results/benchmarks/train_seed_run/{exp}.tsv"
 
 
 rule failures:
@@ -153,47 +155,61 @@ rule failures:
         "results/logs/failures/{exp}.log",
     benchmark:
         "results/benchmarks/failures/{exp}.tsv"
+    threads: threads_of("light")
+    resources:
+        **resources_of("light"),
     conda:
         "../envs/ocpipe.yaml"
     script:
         "../scripts/failures.py"
 
 
-rule table5_1:
+rule table:
+    """Any of the study's tables 5.1-5.11 from its rows' experiments (config `tables`); rows whose encoder needs
+    weights the config does not give say so instead of failing the table."""
     input:
-        runs=[f for e in table_rows("table5_1").values() for f in stability_outputs(e)],
+        lambda w: study.inputs(config, w.table),
     output:
-        csv=report("results/tables/table5_1.csv", category="Tables", labels={"table": "5.1 spatial grounding"}),
-        md="results/tables/table5_1.md",
+        csv=report("results/tables/{table}.csv", category="Tables", labels={"table": "{table}"}),
+        md="results/tables/{table}.md",
+    wildcard_constraints:
+        table="|".join(study.TITLES),
     params:
-        rows=table_rows("table5_1"),
-        n_runs=config["evaluation"]["stability_runs"],
+        cfg=TABLE_CFG,
     log:
-        "results/logs/tables/table5_1.log",
+        "results/logs/tables/{table}.log",
     benchmark:
-        "results/benchmarks/tables/table5_1.tsv"
+        "results/benchmarks/tables/{table}.tsv"
+    threads: threads_of("light")
+    resources:
+        **resources_of("light"),
     conda:
         "../envs/ocpipe.yaml"
     script:
-        "../scripts/table5_1.py"
+        "../scripts/table.py"
 
 
-rule table5_2:
+rule figure:
+    """Figures 5.5 (SR by representation), 5.6 (failures by loss weighting) and 5.7 (StackCube funnel)."""
     input:
-        classes=[f"results/runs/{e}/failures.parquet" for e in table_rows("table5_1").values()],
+        lambda w: study.inputs(config, *study.FIGURES[w.figure]),
     output:
-        csv=report("results/tables/table5_2.csv", category="Tables", labels={"table": "5.2 failure distribution"}),
-        md="results/tables/table5_2.md",
+        png=report("results/figures/{figure}.png", category="Figures", labels={"figure": "{figure}"}),
+    wildcard_constraints:
+        figure="|".join(study.FIGURES),
     params:
-        rows=table_rows("table5_1"),
+        cfg=TABLE_CFG,
     log:
-        "results/logs/tables/table5_2.log",
+        "results/logs/figures/{figure}.log",
     benchmark:
-        "results/benchmarks/tables/table5_2.tsv"
+        "results/benchmarks/figures/{figure}.tsv"
+    threads: threads_of("light")
+    resources:
+        **resources_of("light"),
     conda:
         "../envs/ocpipe.yaml"
     script:
-        "../scripts/table5_2.py"
+        "../scripts/figure.py"
 
 
 rule figures5_1_to_5_3:
@@ -212,6 +228,9 @@ rule figures5_1_to_5_3:
         "results/logs/figures/fig5_1_to_5_3.log",
     benchmark:
         "results/benchmarks/figures/fig5_1_to_5_3.tsv"
+    threads: threads_of("light")
+    resources:
+        **resources_of("light"),
     conda:
         "../envs/ocpipe.yaml"
     script:

@@ -27,9 +27,9 @@ rule features:
         "results/logs/features/{task}_{cams}_{res}_{encoder}.log",
     benchmark:
         "results/benchmarks/features/{task}_{cams}_{res}_{encoder}.tsv"
-    threads: config["compute"]["features"]
+    threads: threads_of("features")
     resources:
-        mem_mb=6000,
+        **resources_of("features"),
     conda:
         "../envs/ocpipe.yaml"
     script:
@@ -49,9 +49,9 @@ rule features_diagnostics:
         "results/logs/features_diagnostics/{task}_{cams}_{res}_{encoder}.log",
     benchmark:
         "results/benchmarks/features_diagnostics/{task}_{cams}_{res}_{encoder}.tsv"
-    threads: 1
+    threads: threads_of("light")
     resources:
-        mem_mb=4000,
+        **resources_of("light"),
     conda:
         "../envs/ocpipe.yaml"
     script:
@@ -72,7 +72,9 @@ rule attention_maps:
         "results/logs/attention_maps/{task}_{cams}_{res}_{encoder}.log",
     benchmark:
         "results/benchmarks/attention_maps/{task}_{cams}_{res}_{encoder}.tsv"
-    threads: 1
+    threads: threads_of("light")
+    resources:
+        **resources_of("light"),
     conda:
         "../envs/ocpipe.yaml"
     script:

@@ -15,9 +15,9 @@ rule frames_shard:
         "results/logs/frames_shard/{task}_{cams}_{res}_shard{shard}.log",
     benchmark:
         "results/benchmarks/frames_shard/{task}_{cams}_{res}_shard{shard}.tsv"
-    threads: 1
+    threads: threads_of("frames")
     resources:
-        mem_mb=4000,
+        **resources_of("frames"),
     conda:
         "../envs/ocpipe.yaml"
     script:
@@ -35,9 +35,9 @@ rule frames_merge:
         "results/logs/frames_merge/{task}_{cams}_{res}.log",
     benchmark:
         "results/benchmarks/frames_merge/{task}_{cams}_{res}.tsv"
-    threads: 1
+    threads: threads_of("light")
     resources:
-        mem_mb=4000,
+        **resources_of("light"),
     conda:
         "../envs/ocpipe.yaml"
     script:
@@ -57,7 +57,9 @@ rule frames_report:
         "results/logs/frames_report/{task}_{cams}_{res}.log",
     benchmark:
         "results/benchmarks/frames_report/{task}_{cams}_{res}.tsv"
-    threads: 1
+    threads: threads_of("light")
+    resources:
+        **resources_of("light"),
     conda:
         "../envs/ocpipe.yaml"
     script:

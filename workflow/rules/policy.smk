@@ -20,9 +20,9 @@ rule train:
         "results/logs/train/{exp}.log",
     benchmark:
         "results/benchmarks/train/{exp}.tsv"
-    threads: config["compute"]["train"]
+    threads: threads_of("train")
     resources:
-        mem_mb=4000,
+        **resources_of("train"),
     conda:
         "../envs/ocpipe.yaml"
     script:

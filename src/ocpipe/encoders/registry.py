@@ -31,3 +31,13 @@ def build(name: str, encoders_cfg: dict, frames_path: str | Path, trained_checkp
     if name == "spot":
         return FrozenSPOT.from_config(encoders_cfg["spot"], trained_checkpoint)
     return FrozenDINO.from_config(encoders_cfg["dino"], name.removeprefix("dino_"))
+
+
+def tokens_per_camera(name: str, encoders_cfg: dict) -> int:
+    """Visual tokens one camera frame becomes (slots, or DINO's CLS / 4x4 / 14x14 readout at 224 px)."""
+    if name == "slots_ssl":
+        return int(encoders_cfg["slots_ssl"]["num_slots"])
+    if name == "spot":
+        return 7
+    patches = encoders_cfg["dino"]["image_size"] // 16
+    return {"dino_cls": 1, "dino_grid4": 16, "dino_dense": patches * patches}[name]

@@ -31,11 +31,11 @@ class _Iterations(nn.Module):
         self.gru = nn.GRUCell(slot_dim, slot_dim)
         self.mlp = nn.Sequential(nn.Linear(slot_dim, mlp_hidden_dim), nn.ReLU(), nn.Linear(mlp_hidden_dim, slot_dim))
 
-    def forward(self, inputs: torch.Tensor, slots: torch.Tensor):
+    def forward(self, inputs: torch.Tensor, slots: torch.Tensor, value_inputs: torch.Tensor | None = None):
         B, K, D = slots.shape
         x = self.norm_inputs(inputs)
         k = self.project_k(x) * D**-0.5
-        v = self.project_v(x)
+        v = self.project_v(x if value_inputs is None else self.norm_inputs(value_inputs))
         attn = None
         for _ in range(self.iterations):
             q = self.project_q(self.norm_slots(slots))
@@ -58,8 +58,14 @@ class SlotAttention(nn.Module):
         nn.init.xavier_uniform_(self.slots_init.weight)
         self.slot_attention = _Iterations(input_dim, slot_dim, mlp_hidden_dim, iterations, eps, norm_inputs)
 
-    def forward(self, inputs: torch.Tensor, init_slots: torch.Tensor | None = None):
-        """inputs (B, N, input_dim) -> slots (B, K, slot_dim), attention masks (B, K, N) summing to 1 over K."""
+    def forward(self, inputs: torch.Tensor, init_slots: torch.Tensor | None = None,
+                value_inputs: torch.Tensor | None = None):
+        """inputs (B, N, input_dim) -> slots (B, K, slot_dim), attention masks (B, K, N) summing to 1 over K.
+
+        ``value_inputs`` (same shape), when given, feed the values instead of ``inputs``: what groups the inputs
+        (keys) and what the slots carry (values) can then differ."""
         B = inputs.shape[0]
         slots = (self.slots_init.weight if init_slots is None else init_slots).expand(B, -1, -1)
-        return self.slot_attention(self.mlp(self.layer_norm(inputs)), slots)
+        embed = lambda t: self.mlp(self.layer_norm(t))  # noqa: E731
+        values = None if value_inputs is None else embed(value_inputs)
+        return self.slot_attention(embed(inputs), slots, values)

@@ -45,6 +45,7 @@ class SSLSlotsConfig:
     seed: int = 0
     rarity_clip: float = 30.0
     rarity_power: float = 0.5
+    position_in_keys: bool = True
 
 
 def _grid_coords(grid: int) -> torch.Tensor:
@@ -78,8 +79,12 @@ class SSLSlotEncoder(nn.Module):
         B, g = images.shape[0], self.cfg.grid
         x = self.cnn(images * 2 - 1).flatten(2).transpose(1, 2)  # (B, g*g, d)
         c = self.coords
-        x = x + self.pos(torch.cat([c, 1 - c], dim=-1)) + self.colour(images.flatten(2).transpose(1, 2))
-        slots, masks = self.slot_attention(x)
+        x = x + self.colour(images.flatten(2).transpose(1, 2))
+        xp = x + self.pos(torch.cat([c, 1 - c], dim=-1))
+        if self.cfg.position_in_keys:
+            slots, masks = self.slot_attention(xp)
+        else:
+            slots, masks = self.slot_attention(x, value_inputs=xp)
         return slots, masks.reshape(B, -1, g, g)
 
     def appearances(self, slots: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,91 @@
+"""The study's tables and figures as targets: what each reads per row, and where those files live.
+
+A table row is an experiment (config `tables`: table -> row label -> experiment). Each table reads a fixed set of
+per-experiment artefacts ("needs"); the workflow asks for exactly those files, and rows whose encoder needs weight
+files the config does not give are reported as such instead of being built."""
+
+from __future__ import annotations
+
+from .experiments import missing_weights, resolve, saved_epochs
+
+TITLES = {
+    "table5_1": "Table 5.1: spatial grounding (held-out SR, mean episode length)",
+    "table5_2": "Table 5.2: failure distribution",
+    "table5_3": "Table 5.3: goal calibration x resolution",
+    "table5_4": "Table 5.4: visual representations",
+    "table5_5": "Table 5.5: single-camera slot heads (base camera, no goal)",
+    "table5_6": "Table 5.6: multi-view fusion, generalization gap (training-seed SR vs held-out SR)",
+    "table5_7": "Table 5.7: temporal window T",
+    "table5_8": "Table 5.8: proprioception and normalization",
+    "table5_9": "Table 5.9: loss weighting by episode progress",
+    "table5_10": "Table 5.10: StackCube, native (base + hand camera, no goal) vs aligned (base + side, 2D goal)",
+    "table5_11": "Table 5.11: StackCube failure distribution",
+}
+
+NEEDS = {
+    "table5_1": ("stability",),
+    "table5_2": ("failures",),
+    "table5_3": ("stability",),
+    "table5_4": ("stability", "train_log"),
+    "table5_5": ("stability", "checkpoints"),
+    "table5_6": ("stability", "train_seeds"),
+    "table5_7": ("stability", "train_log", "best", "checkpoints"),
+    "table5_8": ("stability",),
+    "table5_9": ("stability",),
+    "table5_10": ("stability",),
+    "table5_11": ("failures",),
+}
+
+# figure -> (table whose rows it draws, what it reads per row)
+FIGURES = {
+    "fig5_5": ("table5_4", ("stability",)),
+    "fig5_6": ("table5_9", ("failures",)),
+    "fig5_7": ("table5_10", ("failures",)),
+}
+
+
+def artefacts(config: dict, exp: str, need: str, runs_dir: str = "results/runs") -> list[str]:
+    """Files under results/runs/{exp}/ holding one of a row's needs."""
+    run = f"{runs_dir}/{exp}"
+    if need == "stability":
+        return [f"{run}/stability/run_{r}.episodes.parquet" for r in range(config["evaluation"]["stability_runs"])]
+    if need == "sweep":
+        return [f"{run}/sweep/epoch_{e:04d}.episodes.parquet" for e in saved_epochs(resolve(config, exp))]
+    single = {"failures": "failures.parquet", "train_log": "train_log.parquet", "checkpoints": "checkpoints",
+              "train_seeds": "train_seeds.episodes.parquet", "best": "best.json"}
+    if need not in single:
+        raise ValueError(f"unknown table need {need!r}")
+    return [f"{run}/{single[need]}"]
+
+
+def rows(config: dict, table: str) -> dict[str, str]:
+    if table not in config["tables"]:
+        raise KeyError(f"tables.{table}: not in the config (defined: {', '.join(config['tables'])})")
+    return dict(config["tables"][table])
+
+
+def unavailable(config: dict, table: str) -> dict[str, str]:
+    """Row label -> why it cannot run with this config (e.g. weights not given)."""
+    out = {}
+    for label, exp in rows(config, table).items():
+        reason = missing_weights(config, resolve(config, exp))
+        if reason:
+            out[label] = reason
+    return out
+
+
+def inputs(config: dict, table: str, needs: tuple[str, ...] | None = None) -> list[str]:
+    """Every file a table (or a figure drawing its rows) reads, for the rows that can run."""
+    skip = unavailable(config, table)
+    needs = NEEDS[table] if needs is None else needs
+    return [f for label, exp in rows(config, table).items() if label not in skip
+            for need in needs for f in artefacts(config, exp, need)]
+
+
+def experiments_of(config: dict, tables=None) -> list[str]:
+    """Experiments that the named tables (all by default) need built, in first-use order."""
+    out = []
+    for table in tables or config["tables"]:
+        skip = unavailable(config, table)
+        out += [e for label, e in rows(config, table).items() if label not in skip and e not in out]
+    return out

@@ -1,0 +1,119 @@
+"""Tables 5.3-5.11 and figures 5.5-5.7: which files each row reads, rows that need weights, and the columns."""
+
+import json
+
+import polars as pl
+import pytest
+import torch
+
+from ocpipe import evaluation_jobs, report, study, tables
+from ocpipe.config import deep_merge
+
+
+def episodes(run, successes, steps_=None):
+    n = len(successes)
+    return pl.DataFrame({"exp": ["e"] * n, "checkpoint": [16] * n, "run": [run] * n, "seed": list(range(n)),
+                         "success": successes, "steps": steps_ or [60] * n, "trivial": [False] * n,
+                         "return": [1.0] * n})
+
+
+def test_rows_needing_weights_are_reported_not_built(default_config):
+    skip = study.unavailable(default_config, "table5_4")
+    assert set(skip) == {"DINO CLS", "DINO 4x4", "DINO 14x14 dense", "SPOT 14 slots"}
+    assert "encoders.dino.checkpoint" in skip["DINO CLS"] and "encoders.spot" in skip["SPOT 14 slots"]
+    files = study.inputs(default_config, "table5_4")
+    assert files and all("/goal2d/" in f for f in files)  # only the offline slots_ssl row is built
+    assert "dino_cls" not in study.experiments_of(default_config)
+
+
+def test_given_weights_put_those_rows_in_the_graph(default_config, tmp_path):
+    config = deep_merge(default_config, {"encoders": {"dino": {"checkpoint": str(tmp_path / "dino.pth")}}})
+    assert set(study.unavailable(config, "table5_4")) == {"SPOT 14 slots"}
+    assert any("/dino_dense/" in f for f in study.inputs(config, "table5_4"))
+
+
+def test_every_table_names_only_defined_experiments_and_known_needs(default_config):
+    assert set(default_config["tables"]) == set(study.TITLES)
+    for table in study.TITLES:
+        for exp in study.rows(default_config, table).values():
+            for need in study.NEEDS[table]:
+                assert study.artefacts(default_config, exp, need)
+    with pytest.raises(ValueError, match="unknown table need"):
+        study.artefacts(default_config, "goal2d", "nonsense")
+
+
+def test_representation_table_keeps_rows_without_weights_with_their_settings(default_config):
+    rows = report.table_rows(default_config, "table5_4", needs=())
+    ok = [r for r in rows if r.status is None]
+    ok[0].data = {"stability": pl.concat([episodes(0, [True, False]), episodes(1, [True, True])]),
+                  "train_log": pl.DataFrame({"epoch": [1, 2], "seconds": [30.0, 90.0]})}
+    t = tables.build("table5_4", rows)
+    by = {r["Method"]: r for r in t.iter_rows(named=True)}
+    dense, ssl = by["DINO 14x14 dense"], by["slots_ssl 14 slots (offline)"]
+    assert dense["Status"].startswith("needs weights") and dense["SR mean"] is None
+    assert (dense["Visual tokens"], dense["T"], dense["H"], dense["Batch"]) == (392, 1, 1, 4)
+    assert by["DINO CLS"]["Visual tokens"] == 2 and by["DINO 4x4"]["Visual tokens"] == 32
+    assert ssl["Status"] == "ok" and ssl["Visual tokens"] == 14
+    assert ssl["SR mean"] == pytest.approx(0.75) and ssl["Minutes/epoch"] == pytest.approx(1.0)
+
+
+def test_generalization_gap_is_training_seed_sr_minus_held_out_sr():
+    row = tables.Row("Concatenation", {"fusion": "concat"},
+                     {"stability": pl.concat([episodes(0, [True, False, False, False]), episodes(1, [False] * 4)]),
+                      "train_seeds": episodes(0, [True, True, False, False])})
+    r = tables.build("table5_6", [row]).row(0, named=True)
+    assert r["Training-seed SR"] == pytest.approx(0.5) and r["Held-out SR"] == pytest.approx(0.125)
+    assert r["Gap"] == pytest.approx(0.375)
+
+
+def _fake_run(runs, exp, n_runs=3, epochs=(8, 16), pos_rows=85):
+    (runs / exp / "stability").mkdir(parents=True)
+    for r in range(n_runs):
+        episodes(r, [True, False, r == 0]).write_parquet(runs / exp / "stability" / f"run_{r}.episodes.parquet")
+    (runs / exp / "checkpoints").mkdir()
+    for e in epochs:
+        torch.save({"model": {"pos": torch.zeros(pos_rows, 4), "w": torch.zeros(3, 5)}},
+                   runs / exp / "checkpoints" / f"epoch_{e:04d}.pt")
+    pl.DataFrame({"epoch": [1, 2], "seconds": [60.0, 60.0]}).write_parquet(runs / exp / "train_log.parquet")
+    sweep = [{"checkpoint": 8, "sr": 0.0, "mean_return": 1.5}, {"checkpoint": 16, "sr": 0.5, "mean_return": 4.0}]
+    (runs / exp / "best.json").write_text(json.dumps({"epoch": 16, "sweep": sweep}))
+
+
+def test_window_and_head_tables_read_checkpoints_and_sweeps(default_config, tmp_path):
+    runs = tmp_path / "runs"
+    for exp, pos in (("goal2d", 85), ("window20", 340), ("window40", 680)):
+        _fake_run(runs, exp, pos_rows=pos)
+    t = report.write_table(default_config, "table5_7", tmp_path / "t7.csv", tmp_path / "t7.md", runs_dir=runs)
+    assert t["Sequence length"].to_list() == [85, 340, 680] and t["T"].to_list() == [5, 20, 40]
+    assert t["Reward at peak"].to_list() == [4.0] * 3 and t["Best epoch"].to_list() == [16] * 3
+    assert t["Minutes/epoch"].to_list() == [1.0] * 3
+    for exp in ("head_flatten", "head_deepsets", "head_weighted_pool", "head_slot_transformer"):
+        _fake_run(runs, exp)
+    t = report.write_table(default_config, "table5_5", tmp_path / "t5.csv", tmp_path / "t5.md", runs_dir=runs)
+    assert t["Parameters"].to_list() == [85 * 4 + 15] * 4
+    assert pl.read_csv(tmp_path / "t5.csv")["Head"].to_list() == ["flatten", "deepsets", "weighted_pool",
+                                                                  "slot_transformer"]
+
+
+def test_figures_draw_rows_and_mark_missing_weights(default_config, tmp_path):
+    runs = tmp_path / "runs"
+    _fake_run(runs, "goal2d")
+    report.write_figure(default_config, "fig5_5", tmp_path / "fig5_5.png", runs_dir=runs)
+    assert (tmp_path / "fig5_5.png").stat().st_size > 5_000
+    classes = pl.DataFrame({"class": ["No Grasp", "Grasp No Stack", "Success"], "trivial": [False] * 3,
+                            "grasp": [False, True, True], "lift": [False, True, True],
+                            "near target": [False, False, True], "success": [False, False, True]})
+    for exp in ("stack_native", "stack_aligned"):
+        (runs / exp).mkdir()
+        classes.write_parquet(runs / exp / "failures.parquet")
+    report.write_figure(default_config, "fig5_7", tmp_path / "fig5_7.png", runs_dir=runs)
+    t = report.write_table(default_config, "table5_11", tmp_path / "t11.csv", tmp_path / "t11.md", runs_dir=runs)
+    assert t["Grasp No Stack"].to_list() == [1, 1] and t["Total"].to_list() == [3, 3]
+
+
+def test_training_seed_runs_draw_from_the_demo_seeds(default_config):
+    demo_seeds = list(range(0, 300, 3))
+    a = evaluation_jobs.seeds_for("train_seeds", default_config["evaluation"], 0, episode_seeds=demo_seeds)
+    assert a == evaluation_jobs.seeds_for("train_seeds", default_config["evaluation"], 0, episode_seeds=demo_seeds)
+    assert len(a) == default_config["evaluation"]["stability_episodes"] and set(a) <= set(demo_seeds)
+    assert len(evaluation_jobs.seeds_for("train_seeds", default_config["evaluation"], 0, episode_seeds=[4, 7])) == 2

@@ -1,4 +1,0 @@
-from ocpipe import report, runlog
-
-with runlog.to_file(snakemake.log[0]):
-    print(report.write_table5_2(snakemake.params.rows, snakemake.output.csv, snakemake.output.md))
