@@ -97,6 +97,20 @@ def seconds_per_epoch(policy, features, frames, max_batches, threads):
     return per_batch * len(loader), n, len(loader), sum(p.numel() for p in model.parameters())
 
 
+def time_experiments(config, names, features, frames, args):
+    print(f"{'experiment':<26}{'params':>10}{'T':>8}{'s/epoch':>10}{'x goal2d':>10}  ({args.threads} threads)")
+    base = None
+    for name in names:
+        p = experiments.resolve(config, name)
+        if experiments.features_store(p) != experiments.features_store(experiments.resolve(config, "goal2d")):
+            print(f"{name:<26}  skipped: needs {experiments.features_store(p)}")
+            continue
+        sec, n, total, params = seconds_per_epoch(p, features, frames, args.epoch_batches, args.threads)
+        base = base or sec
+        print(f"{name:<26}{params:>10}{p['window']:>8}{sec:>10.1f}{sec / base:>10.2f}  ({n} of {total} batches)")
+    print()
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--config", default=str(REPO / "config" / "config.yaml"))
@@ -104,6 +118,10 @@ def main():
     ap.add_argument("--random-batches", type=int, default=20, help="batches timed for the random-access loader")
     ap.add_argument("--epoch-batches", type=int, default=60, help="batches timed per model (epoch time extrapolated)")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--experiments", nargs="*", default=[],
+                    help="also time an epoch of these config experiments (e.g. window20 window40), side by side "
+                         "with goal2d; experiments on other tasks or encoders need their own features store")
+    ap.add_argument("--skip-loaders", action="store_true", help="only time epochs")
     args = ap.parse_args()
     config = cfgmod.load(args.config)
     policy = experiments.resolve(config, "goal2d")
@@ -122,6 +140,10 @@ def main():
             sys.exit(f"{features} is missing: build it first (make main) or pass --synthetic N")
         where = str(features)
     print(f"store: {where}\n")
+    if args.experiments:
+        time_experiments(config, ["goal2d", *args.experiments], features, frames, args)
+    if args.skip_loaders:
+        return
     chunk = measure_loader("chunk-aware", policy, features, frames, 0)
     rand = measure_loader("random-access", policy, features, frames, args.random_batches)
     rate = lambda r: r["samples"] / r["seconds"]  # noqa: E731

@@ -12,6 +12,7 @@ import torch
 
 from .atomic import atomic_path, write_json
 from .decomposition import score_masks
+from .devices import pick_device
 from .encoders import crop, ssl_slots
 from .frames_store import open_store
 
@@ -46,7 +47,8 @@ def train_stage(store_paths: list[str | Path], enc_cfg: dict, seed: int, out_ckp
         held_out.append((path, store, windows, hi))
     images = torch.cat(images)
     t0 = time.perf_counter()
-    model, curve, _ = ssl_slots.train(images, cfg, threads=threads, progress=progress)
+    model, curve, _ = ssl_slots.train(images, cfg, threads=threads, progress=progress,
+                                      device=pick_device(enc_cfg["device"]))
     train_seconds = time.perf_counter() - t0
     with atomic_path(out_ckpt) as tmp:
         ssl_slots.save(model, tmp, {"workspace_min": enc_cfg["workspace_min"], "workspace_max": enc_cfg["workspace_max"],

@@ -19,6 +19,7 @@ import torch
 from tqdm import tqdm
 
 from . import projection, sim
+from .devices import to_device
 from .encoders import registry
 from .features import sha256
 from .policy import normalization
@@ -50,7 +51,8 @@ class ClosedLoop:
         if encoder_checkpoint and self.meta.get("encoder_checkpoint_sha256") not in (None, sha256(encoder_checkpoint)):
             raise ValueError(f"{encoder_checkpoint} is not the encoder checkpoint that {checkpoint} was trained on "
                              "(sha256 differs): rebuild the features store and retrain")
-        self.encoder = registry.build(p["encoder"], config["encoders"], frames_store, encoder_checkpoint)
+        self.encoder = to_device(registry.build(p["encoder"], config["encoders"], frames_store, encoder_checkpoint),
+                                 self.device)
         self.task = p["task"]
         self.camera_names = list(sim.CAMERA_SETS[p["cams"]])
         self.uids = [sim.SIM_CAMERA_UID[c] for c in self.camera_names]
@@ -82,7 +84,7 @@ class ClosedLoop:
     @torch.inference_mode()
     def _observe(self, obs) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:
         rgb = torch.stack([obs["sensor_data"][u]["rgb"][0] for u in self.uids])[None].cpu()
-        tokens = self.encoder.encode(rgb)[0][0][self.policy["cameras"]]
+        tokens = self.encoder.encode(rgb.to(self.device))[0][0][self.policy["cameras"]].cpu()
         # the policy was trained on tokens as stored (float16 by default): round the same way
         tokens = tokens.to(getattr(torch, self.meta.get("tokens_dtype", "float32"))).float()
         labels = sim.task_readouts(self.env)

@@ -57,7 +57,7 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
         raise FileNotFoundError(f"{ckpt}: experiment {exp} saved no checkpoint at epoch {epoch}")
     import torch
 
-    from .policy.training import pick_device
+    from .devices import pick_device
 
     torch.set_num_threads(threads)
     loop = evaluation.ClosedLoop(ckpt, config, frames, encoder_ckpt or None,

@@ -20,6 +20,7 @@ import zarr
 from tqdm import tqdm
 
 from .atomic import atomic_path
+from .devices import pick_device, to_device
 from .frames_store import open_store
 
 
@@ -42,8 +43,11 @@ def sha256(path: str | Path | None) -> str | None:
 
 
 def encode_store(encoder: FrozenEncoder, frames_path: str | Path, out_path: str | Path, batch_size: int,
-                 chunk_frames: int, threads: int = 1, dtype: str = "float16", progress: bool = True) -> dict:
+                 chunk_frames: int, threads: int = 1, dtype: str = "float16", progress: bool = True,
+                 device: str = "auto") -> dict:
     torch.set_num_threads(threads)
+    dev = pick_device(device)
+    encoder = to_device(encoder, dev)
     frames = open_store(frames_path)
     rgb = frames["rgb"]
     N = rgb.shape[0]
@@ -55,10 +59,10 @@ def encode_store(encoder: FrozenEncoder, frames_path: str | Path, out_path: str 
         # read one store chunk at a time (a frames chunk is the unit of I/O), encode it in batches
         step = rgb.chunks[0] * max(1, batch_size // rgb.chunks[0])
         for lo in range(0, N, step):
-            block = torch.from_numpy(rgb[lo : lo + step])
+            block = torch.from_numpy(rgb[lo : lo + step]).to(dev)
             outs = [encoder.encode(block[i : i + batch_size]) for i in range(0, len(block), batch_size)]
-            tokens = torch.cat([o[0] for o in outs]).numpy().astype(dtype)
-            masks = torch.cat([o[1] for o in outs]).numpy().astype(dtype) if outs[0][1] is not None else None
+            tokens = torch.cat([o[0] for o in outs]).cpu().numpy().astype(dtype)
+            masks = torch.cat([o[1] for o in outs]).cpu().numpy().astype(dtype) if outs[0][1] is not None else None
             if tokens_arr is None:
                 tokens_arr = root.create_array("tokens", shape=(N, *tokens.shape[1:]), dtype=dtype,
                                                chunks=(chunk_frames, *tokens.shape[1:]))

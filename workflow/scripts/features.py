@@ -7,5 +7,6 @@ with runlog.to_file(snakemake.log[0]):
                              snakemake.input.ckpt or None)
     f = snakemake.params.features
     stats = features.encode_store(encoder, snakemake.input.frames, snakemake.output.store, f["batch_size"],
-                                  f["chunk_frames"], threads=snakemake.threads, dtype=f["dtype"])
+                                  f["chunk_frames"], threads=snakemake.threads, dtype=f["dtype"],
+                                  device=f["device"])
     print(stats)

@@ -3,6 +3,7 @@ import torch
 
 from ocpipe import runlog
 from ocpipe.atomic import atomic_path
+from ocpipe.devices import pick_device
 from ocpipe.encoders import checkpoints, dinosaur
 from ocpipe.frames_store import open_store
 
@@ -11,7 +12,8 @@ with runlog.to_file(snakemake.log[0]):
     vit = checkpoints.load_dino_vit(snakemake.input.dino, config_key="encoders.spot.dino_checkpoint")
     images = torch.cat([dinosaur.frames_sample(open_store(p), spot["train_frames"]) for p in snakemake.input.stores])
     sa, curve = dinosaur.train_slot_module(vit, images, spot["image_size"], spot["train_steps"], spot["batch_size"],
-                                           spot["lr"], snakemake.params.seed, threads=snakemake.threads)
+                                           spot["lr"], snakemake.params.seed, threads=snakemake.threads,
+                                           device=pick_device(spot["device"]))
     with atomic_path(snakemake.output.ckpt) as tmp:
         dinosaur.save_slot_module(sa, tmp, {"dino_checkpoint": str(snakemake.input.dino)})
     with atomic_path(snakemake.output.curve) as tmp:

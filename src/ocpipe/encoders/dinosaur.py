@@ -34,31 +34,32 @@ class FeatureDecoder(nn.Module):
 
 
 def train_slot_module(vit, images_u8: torch.Tensor, image_size: int, steps: int, batch_size: int, lr: float,
-                      seed: int, threads: int = 1, slot_kwargs: dict | None = None, progress: bool = True):
-    """images_u8 (M, 3, H, W). Returns (slot module, curve rows)."""
+                      seed: int, threads: int = 1, slot_kwargs: dict | None = None, progress: bool = True,
+                      device: torch.device | str = "cpu"):
+    """images_u8 (M, 3, H, W). Returns (slot module on CPU, curve rows)."""
     torch.manual_seed(seed)
     torch.set_num_threads(threads)
     kwargs = dict(SLOT_KWARGS, **(slot_kwargs or {}))
-    vit = vit.eval()
-    prep = ImageNetPreprocess(image_size)
-    sa = SlotAttention(**kwargs)
+    vit = vit.eval().to(device)
+    prep = ImageNetPreprocess(image_size).to(device)
+    sa = SlotAttention(**kwargs).to(device)
     with torch.no_grad():
-        probe = vit.forward_features(prep(images_u8[:1]), final_norm=False)
-    dec = FeatureDecoder(kwargs["slot_dim"], probe.shape[-1], probe.shape[1] - 1)
+        probe = vit.forward_features(prep(images_u8[:1].to(device)), final_norm=False)
+    dec = FeatureDecoder(kwargs["slot_dim"], probe.shape[-1], probe.shape[1] - 1).to(device)
     opt = torch.optim.Adam([*sa.parameters(), *dec.parameters()], lr=lr)
     gen = torch.Generator().manual_seed(seed)
     curve, t0 = [], time.perf_counter()
     for step in tqdm(range(steps), desc="train SPOT slot module on DINO", disable=not progress):
         idx = torch.randint(len(images_u8), (batch_size,), generator=gen)
         with torch.no_grad():
-            target = vit.forward_features(prep(images_u8[idx]), final_norm=False)[:, 1:]
+            target = vit.forward_features(prep(images_u8[idx].to(device)), final_norm=False)[:, 1:]
         slots, _ = sa(target)
         loss = ((dec(slots) - target) ** 2).mean()
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
         curve.append({"step": step, "loss": loss.item(), "seconds": time.perf_counter() - t0})
-    return sa.eval(), curve
+    return sa.eval().cpu(), curve
 
 
 def save_slot_module(sa: SlotAttention, path: str | Path, meta: dict) -> None:

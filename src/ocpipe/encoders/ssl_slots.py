@@ -116,12 +116,14 @@ def rarity_weights(images_u8: torch.Tensor, clip: float, power: float = 0.5) -> 
     return w.clamp(max=clip).float()
 
 
-def train(images_u8: torch.Tensor, cfg: SSLSlotsConfig, threads: int = 1, progress: bool = True):
-    """Train on crops (M, 3, g, g) uint8. Returns (model, curve rows, weights). Deterministic for a seed on CPU."""
+def train(images_u8: torch.Tensor, cfg: SSLSlotsConfig, threads: int = 1, progress: bool = True,
+          device: torch.device | str = "cpu"):
+    """Train on crops (M, 3, g, g) uint8. Returns (model on CPU, curve rows, weights). Deterministic for a seed on
+    CPU."""
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(threads)
-    model = SSLSlotEncoder(cfg)
-    weights = rarity_weights(images_u8, cfg.rarity_clip, cfg.rarity_power)
+    model = SSLSlotEncoder(cfg).to(device)
+    weights = rarity_weights(images_u8, cfg.rarity_clip, cfg.rarity_power).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: min(1.0, (s + 1) / cfg.warmup_steps)
                                               * 0.5 * (1 + math.cos(math.pi * min(1.0, s / cfg.steps))))
@@ -130,7 +132,7 @@ def train(images_u8: torch.Tensor, cfg: SSLSlotsConfig, threads: int = 1, progre
     bar = tqdm(range(cfg.steps), desc="train slots_ssl", disable=not progress)
     for step in bar:
         idx = torch.randint(len(images_u8), (cfg.batch_size,), generator=gen)
-        batch_u8 = images_u8[idx]
+        batch_u8 = images_u8[idx].to(device)
         x = batch_u8.float() / 255.0
         _, masks, per_slot = model(x)
         w = weights[colour_bins(batch_u8)]  # (B, g, g)
@@ -150,7 +152,7 @@ def train(images_u8: torch.Tensor, cfg: SSLSlotsConfig, threads: int = 1, progre
                           "seconds": time.perf_counter() - t0})
             bar.set_postfix(loss=f"{loss.item():.4f}", H=f"{entropy.item():.2f}")
     model.eval()
-    return model, curve, weights
+    return model.cpu(), curve, weights.cpu()
 
 
 def save(model: SSLSlotEncoder, path, extra: dict) -> None:

@@ -26,6 +26,7 @@ import torch
 from tqdm import tqdm
 
 from ..atomic import atomic_path
+from ..devices import pick_device
 from ..features import open_features
 from ..frames_store import open_store
 from . import normalization
@@ -34,13 +35,6 @@ from .weighting import loss_weights
 from .windows import ChunkWindowLoader, Labels
 
 log = logging.getLogger(__name__)
-
-
-def pick_device(setting: str) -> torch.device:
-    """'auto' | 'cpu' | 'cuda' (policy.device, evaluation.device) -> the torch device to use."""
-    if setting == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError("device is 'cuda' but torch sees no CUDA device (use 'auto' or 'cpu')")
-    return torch.device("cuda" if setting in ("auto", "cuda") and torch.cuda.is_available() else "cpu")
 
 
 def goal_array(frames, policy: dict) -> np.ndarray:
