@@ -117,3 +117,10 @@ def test_training_seed_runs_draw_from_the_demo_seeds(default_config):
     assert a == evaluation_jobs.seeds_for("train_seeds", default_config["evaluation"], 0, episode_seeds=demo_seeds)
     assert len(a) == default_config["evaluation"]["stability_episodes"] and set(a) <= set(demo_seeds)
     assert len(evaluation_jobs.seeds_for("train_seeds", default_config["evaluation"], 0, episode_seeds=[4, 7])) == 2
+
+
+def test_stackcube_failure_table_always_has_grasp_no_stack(tmp_path):
+    classes = pl.DataFrame({"class": ["No Grasp", "Success"], "trivial": [False, False]})
+    t = tables.table5_2({"Native": classes}, always=("Grasp No Stack",)).row(0, named=True)
+    assert t["Grasp No Stack"] == 0 and t["Grasp No Stack %"] == 0.0 and t["Total"] == 2
+    assert "Grasp No Stack" not in tables.table5_2({"Native": classes}).columns

@@ -1,6 +1,8 @@
-"""The study's figures 5.1-5.3 from training logs and evaluation Parquet files."""
+"""The study's figures 5.1-5.3 and 5.5-5.7 from training logs and evaluation Parquet files."""
 
 from __future__ import annotations
+
+import re
 
 import matplotlib
 
@@ -73,9 +75,10 @@ def sr_bars(rows, path, title: str) -> None:
     """Held-out SR (mean ± std over stability runs) per table row; rows without results say why."""
     fig, ax = plt.subplots(figsize=(1.6 * len(rows) + 2, 4))
     for i, row in enumerate(rows):
-        if row.status:
-            ax.text(i, 0.02, row.status.replace(": ", ":\n", 1), rotation=90, ha="center", va="bottom", fontsize=7,
-                    color="grey")
+        if row.status:  # e.g. "needs weights: set encoders.dino.checkpoint (...)": name the key, not the whole story
+            keys = re.findall(r"encoders\.\w+\.\w+", row.status)
+            ax.text(i, 0.03, "\n".join([row.status.split(":")[0], *keys[:1]]), rotation=90, ha="center", va="bottom",
+                    fontsize=7, color="grey")
             continue
         s = stability_summary(row.data["stability"])
         ax.bar(i, s["sr_mean"], yerr=np.nan_to_num(s["sr_std"]), capsize=6, color=f"C{i}")

@@ -38,7 +38,7 @@ def _runs(exp: str, runs_dir) -> pl.DataFrame:
 
 
 def _markdown(table: pl.DataFrame, title: str) -> str:
-    fmt = lambda v: f"{v:.3f}" if isinstance(v, float) else str(v)  # noqa: E731
+    fmt = lambda v: f"{v:.3f}" if isinstance(v, float) else "—" if v is None else str(v)  # noqa: E731
     lines = [f"**{title}**", "", "| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
     lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in table.iter_rows()]
     return "\n".join(lines) + "\n"
@@ -96,7 +96,8 @@ def table_rows(config: dict, table: str, needs=None, runs_dir="results/runs") ->
 def write_table(config: dict, table: str, csv_path, md_path, runs_dir="results/runs") -> pl.DataFrame:
     rows = table_rows(config, table, runs_dir=runs_dir)
     if study.NEEDS[table] == ("failures",):
-        frame = tables.table5_2({r.label: r.data["failures"] for r in rows if r.status is None})
+        always = ("Grasp No Stack",) if table == "table5_11" else ()
+        frame = tables.table5_2({r.label: r.data["failures"] for r in rows if r.status is None}, always)
     else:
         frame = tables.build(table, rows)
     return _write(frame, csv_path, md_path, study.TITLES[table])

@@ -32,13 +32,14 @@ def stability_summary(episodes: pl.DataFrame) -> dict:
             "trivial_excluded": int(episodes["trivial"].sum())}
 
 
-def table5_2(methods: dict[str, pl.DataFrame]) -> pl.DataFrame:
-    """methods: Method -> its per-episode failure classes. Counts and % of non-trivial episodes."""
+def table5_2(methods: dict[str, pl.DataFrame], always: tuple[str, ...] = ()) -> pl.DataFrame:
+    """methods: Method -> its per-episode failure classes. Counts and % of non-trivial episodes; classes beyond
+    Table 5.2's appear when some method has them, or always when named in ``always`` (Table 5.11)."""
     rows = []
     for method, classes in methods.items():
         c = taxonomy.counts(classes)
         total = sum(c.values())
-        extra = {k: v for k, v in c.items() if k not in TABLE5_2_CLASSES and v}
+        extra = {k: v for k, v in c.items() if k not in TABLE5_2_CLASSES and (v or k in always)}
         row = {"Method": method}
         for name in TABLE5_2_CLASSES + tuple(extra):
             row[name] = c[name]
