@@ -97,8 +97,8 @@ def _columns(table: str, row: Row) -> dict:
         best = {} if row.status else row.data["best"]
         peak = next((r["mean_return"] for r in best.get("sweep", []) if r["checkpoint"] == best["epoch"]), None)
         seq = None if row.status else row.data["checkpoints"]["sequence_length"]
-        return {"T": p["window"], "Sequence length": seq, "Minutes/epoch": _minutes_per_epoch(row), "Epochs": p["epochs"], "Best epoch": best.get("epoch"),
-                "Reward at peak": peak, **_stability(row)}
+        return {"T": p["window"], "Sequence length": seq, "Minutes/epoch": _minutes_per_epoch(row),
+                "Epochs": p["epochs"], "Best epoch": best.get("epoch"), "Reward at peak": peak, **_stability(row)}
     if table == "table5_8":
         return {"Proprio": p["proprio"], **_stability(row)}
     if table == "table5_9":

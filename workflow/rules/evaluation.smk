@@ -1,5 +1,6 @@
 # Closed-loop evaluation (SPEC section 8): a sweep job per (experiment, checkpoint), the best checkpoint, stability
-# runs (one job each), failure classification (SPEC section 9), and Table 5.1 / 5.2 with figures 5.1-5.3.
+# runs (one job each), training-seed runs, failure classification (SPEC section 9), and the study's tables and
+# figures (SPEC section 10).
 from types import SimpleNamespace
 
 from ocpipe import study
@@ -37,13 +38,11 @@ def eval_inputs(w):
 
 
 def sweep_outputs(exp):
-    return [f"results/runs/{exp}/sweep/epoch_{e:04d}.episodes.parquet"
-            for e in _exp.saved_epochs(_exp.resolve(config, exp))]
+    return study.artefacts(config, exp, "sweep")
 
 
 def stability_outputs(exp):
-    return [f"results/runs/{exp}/stability/run_{r}.episodes.parquet"
-            for r in range(config["evaluation"]["stability_runs"])]
+    return study.artefacts(config, exp, "stability")
 
 
 def failure_inputs(exp):
