@@ -84,8 +84,8 @@ def table_rows(config: dict, table: str, needs=None, runs_dir="results/runs") ->
     out = []
     for label, exp in study.rows(config, table).items():
         policy = resolve(config, exp)
-        row = tables.Row(label, policy, status=skip.get(label),
-                         visual_tokens=len(policy["cameras"]) * tokens_per_camera(policy["encoder"], config["encoders"]))
+        tokens = len(policy["cameras"]) * tokens_per_camera(policy["encoder"], config["encoders"])
+        row = tables.Row(label, policy, status=skip.get(label), visual_tokens=tokens)
         if row.status is None:
             row.data = {need: _load(need, study.artefacts(config, exp, need, runs_dir))
                         for need in (study.NEEDS[table] if needs is None else needs)}
