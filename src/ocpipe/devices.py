@@ -17,5 +17,4 @@ def to_device(encoder, device: torch.device):
     for value in vars(encoder).values():
         if isinstance(value, torch.nn.Module):
             value.to(device)
-    encoder.device = device
     return encoder

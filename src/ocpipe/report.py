@@ -30,13 +30,6 @@ def classify_episodes(episode_files, task: str, rules: dict, out_path) -> pl.Dat
     return classes
 
 
-def _runs(exp: str, runs_dir) -> pl.DataFrame:
-    files = sorted((Path(runs_dir) / exp / "stability").glob("run_*.episodes.parquet"))
-    if not files:
-        raise FileNotFoundError(f"no stability runs under {Path(runs_dir) / exp / 'stability'}")
-    return _read(files)
-
-
 def _markdown(table: pl.DataFrame, title: str) -> str:
     fmt = lambda v: f"{v:.3f}" if isinstance(v, float) else "—" if v is None else str(v)  # noqa: E731
     lines = [f"**{title}**", "", "| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
@@ -49,15 +42,6 @@ def _write(table: pl.DataFrame, csv_path, md_path, title: str) -> pl.DataFrame:
     with atomic_path(md_path) as tmp:
         tmp.write_text(_markdown(table, title))
     return table
-
-
-def write_figures5_1_to_5_3(rows: dict[str, str], fig5_1, fig5_2, fig5_3, runs_dir="results/runs") -> None:
-    runs = Path(runs_dir)
-    figures.fig5_1({m: pl.read_parquet(runs / e / "train_log.parquet") for m, e in rows.items()},
-                   {m: _read(sorted((runs / e / "sweep").glob("epoch_*.episodes.parquet"))) for m, e in rows.items()},
-                   fig5_1)
-    figures.fig5_2({m: _runs(e, runs_dir) for m, e in rows.items()}, fig5_2)
-    figures.fig5_3({m: pl.read_parquet(runs / e / "failures.parquet") for m, e in rows.items()}, fig5_3)
 
 
 def _checkpoint_facts(checkpoints_dir) -> dict:
@@ -113,3 +97,10 @@ def write_figure(config: dict, figure: str, out_png, runs_dir="results/runs") ->
                        title="Failure distribution by loss weighting")
     else:
         figures.funnel({r.label: r.data["failures"] for r in rows if r.status is None}, out_png)
+
+
+def write_figures5_1_to_5_3(config: dict, fig5_1, fig5_2, fig5_3, runs_dir="results/runs") -> None:
+    rows = [r for r in table_rows(config, "table5_1", study.SPATIAL_FIGURES_NEEDS, runs_dir) if r.status is None]
+    figures.fig5_1({r.label: r.data["train_log"] for r in rows}, {r.label: r.data["sweep"] for r in rows}, fig5_1)
+    figures.fig5_2({r.label: r.data["stability"] for r in rows}, fig5_2)
+    figures.fig5_3({r.label: r.data["failures"] for r in rows}, fig5_3)

@@ -36,6 +36,9 @@ NEEDS = {
     "table5_11": ("failures",),
 }
 
+# figures 5.1-5.3 draw Table 5.1's rows: training curves, sweeps, stability runs, failure classes
+SPATIAL_FIGURES_NEEDS = ("train_log", "sweep", "stability", "failures")
+
 # figure -> (table whose rows it draws, what it reads per row)
 FIGURES = {
     "fig5_5": ("table5_4", ("stability",)),

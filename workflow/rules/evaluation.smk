@@ -52,10 +52,6 @@ def failure_inputs(exp):
     return stability_outputs(exp)
 
 
-def table_rows(table):
-    return study.rows(config, table)
-
-
 rule sweep:
     input:
         unpack(eval_inputs),
@@ -213,16 +209,13 @@ rule figure:
 
 rule figures5_1_to_5_3:
     input:
-        train=[f"results/runs/{e}/train_log.parquet" for e in table_rows("table5_1").values()],
-        sweeps=[f for e in table_rows("table5_1").values() for f in sweep_outputs(e)],
-        runs=[f for e in table_rows("table5_1").values() for f in stability_outputs(e)],
-        classes=[f"results/runs/{e}/failures.parquet" for e in table_rows("table5_1").values()],
+        study.inputs(config, "table5_1", study.SPATIAL_FIGURES_NEEDS),
     output:
         fig5_1=report("results/figures/fig5_1.png", category="Figures", labels={"figure": "5.1 training loss and evaluation reward"}),
         fig5_2=report("results/figures/fig5_2.png", category="Figures", labels={"figure": "5.2 episode length"}),
         fig5_3=report("results/figures/fig5_3.png", category="Figures", labels={"figure": "5.3 failure counts"}),
     params:
-        rows=table_rows("table5_1"),
+        cfg=TABLE_CFG,
     log:
         "results/logs/figures/fig5_1_to_5_3.log",
     benchmark:
