@@ -16,6 +16,7 @@ def fake_episode(T, C=2, R=32, seed=0):
         "goal_pos": rng.normal(size=(T, 3)).astype(np.float32),
         "tcp_pos": rng.normal(size=(T, 3)).astype(np.float32),
         "obj_pos": rng.normal(size=(T, 3)).astype(np.float32),
+        "obj_quat": rng.normal(size=(T, 4)).astype(np.float32),
         "is_grasped": rng.random(T) > 0.5,
         "goal2d_exact": rng.random((T, 2 * C)).astype(np.float32),
         "goal2d_approx": rng.random((T, 2 * C)).astype(np.float32),

@@ -161,7 +161,7 @@ def test_training_writes_checkpoints_and_log_and_a_killed_run_resumes_identicall
     policy = policy_settings(loss_weighting="u_shaped")
     full = train(policy, 0, features, frames, tmp_path / "full", progress=False)
     assert full["epoch"].to_list() == [1, 2, 3, 4]
-    assert set(full.columns) == {"epoch", "loss", "loss_joints", "loss_gripper", "lr", "seconds"}
+    assert set(full.columns) == {"epoch", "loss", "loss_joints", "loss_gripper", "loss_aux", "lr", "seconds"}
     assert full["loss"][-1] < full["loss"][0]
     ckpts = sorted(p.name for p in (tmp_path / "full" / "checkpoints").iterdir())
     assert ckpts == ["epoch_0002.pt", "epoch_0004.pt"]

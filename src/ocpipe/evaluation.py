@@ -21,9 +21,11 @@ from tqdm import tqdm
 from . import projection, sim
 from .devices import to_device
 from .encoders import registry
+from .encoders.state import state_tokens
 from .features import sha256
 from .policy import normalization
 from .policy.training import load_policy
+from .slot_geometry import full_image_windows, slot_geometry
 
 log = logging.getLogger(__name__)
 
@@ -53,10 +55,15 @@ class ClosedLoop:
                              "(sha256 differs): rebuild the features store and retrain")
         self.encoder = to_device(registry.build(p["encoder"], config["encoders"], frames_store, encoder_checkpoint),
                                  self.device)
+        self.reads_labels = getattr(self.encoder, "reads_labels", False)
         self.task = p["task"]
         self.camera_names = list(sim.CAMERA_SETS[p["cams"]])
         self.uids = [sim.SIM_CAMERA_UID[c] for c in self.camera_names]
-        self.env = sim.make_env(self.task, config, p["cams"], p["resolution"], obs_mode="rgb")
+        # an encoder that reads the simulator's state needs no image: render nothing
+        self.env = sim.make_env(self.task, config, None if self.reads_labels else p["cams"], p["resolution"],
+                                obs_mode="rgb")
+        self.windows = getattr(self.encoder, "windows", full_image_windows(len(self.uids), p["resolution"]))
+        self.residual = p.get("joint_targets", "absolute") == "residual"
         self.approx_K, self.approx_E = sim.approx_camera_matrices(config, self.camera_names, p["resolution"])
         ev = config["evaluation"]
         self.cap = ev["episode_cap"][self.task]
@@ -81,13 +88,22 @@ class ClosedLoop:
             E = np.stack([params[u]["extrinsic_cv"][0].cpu().numpy() for u in self.uids])
         return projection.goal2d(goal_pos[None], K, E, res)[0].astype(np.float32)
 
+    def _tokens(self, obs, labels: dict) -> torch.Tensor:
+        """This step's visual tokens (C, K, D), exactly as the policy saw them in training."""
+        if self.reads_labels:
+            return torch.from_numpy(state_tokens(labels["obj_pos"], labels["obj_quat"]))[self.policy["cameras"]]
+        rgb = torch.stack([obs["sensor_data"][u]["rgb"][0] for u in self.uids])[None].cpu()
+        tokens, masks = self.encoder.encode(rgb.to(self.device))
+        # the policy was trained on tokens as stored (float16 by default): round the same way
+        tokens = tokens.cpu().to(getattr(torch, self.meta.get("tokens_dtype", "float32"))).float()
+        if self.policy.get("slot_geometry", False):
+            tokens = torch.cat([tokens, slot_geometry(masks, self.windows, self.policy["resolution"]).cpu()], -1)
+        return tokens[0][self.policy["cameras"]]
+
     @torch.inference_mode()
     def _observe(self, obs) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:
-        rgb = torch.stack([obs["sensor_data"][u]["rgb"][0] for u in self.uids])[None].cpu()
-        tokens = self.encoder.encode(rgb.to(self.device))[0][0][self.policy["cameras"]].cpu()
-        # the policy was trained on tokens as stored (float16 by default): round the same way
-        tokens = tokens.to(getattr(torch, self.meta.get("tokens_dtype", "float32"))).float()
         labels = sim.task_readouts(self.env)
+        tokens = self._tokens(obs, labels)
         proprio = normalization.proprio(labels["qpos"][None], self.stats)[0]
         return tokens, proprio, self._goal(obs, labels["goal_pos"]), labels
 
@@ -108,7 +124,8 @@ class ClosedLoop:
             if not queue:
                 batch = [torch.stack([torch.as_tensor(w[i]) for w in window])[None].to(self.device) for i in range(3)]
                 pred = self.model(*batch)[0].cpu().numpy()
-                queue = list(normalization.action_from_model(pred, self.stats)[: self.execute])
+                qpos = labels["qpos"][:7] if self.residual else None
+                queue = list(normalization.action_from_model(pred, self.stats, qpos=qpos)[: self.execute])
             action = queue.pop(0)
             obs, reward, _, _, info = self.env.step(torch.as_tensor(action[None]))
             reward = float(reward[0])

@@ -39,6 +39,13 @@ def problems(policy: dict) -> list[str]:
         out.append(f"  {key}.cameras: a frames store has two cameras (indices 0 and 1)")
     if policy["goal"] == "2d" and policy["cams"] == "native" and policy["goal_calibration"] == "approx":
         out.append(f"  {key}.goal_calibration: the hand camera moves, so 'approx' 2d goals exist only for cams 'dual'")
+    if policy["encoder"] == "state":
+        if policy["goal"] == "2d":
+            out.append(f"  {key}.goal: the 'state' control renders no camera, so it takes goal 'none' or '3d'")
+        if list(policy["cameras"]) != [0]:
+            out.append(f"  {key}.cameras: the 'state' control has one token stream: cameras [0]")
+    if policy.get("slot_geometry") and policy["encoder"] not in ("slots_ssl", "spot"):
+        out.append(f"  {key}.slot_geometry: needs a slot encoder with masks (slots_ssl or spot)")
     return out
 
 

@@ -21,6 +21,7 @@ PER_FRAME = {
     "goal_pos": (lambda C, R: (3,), "float32"),
     "tcp_pos": (lambda C, R: (3,), "float32"),
     "obj_pos": (lambda C, R: (3,), "float32"),
+    "obj_quat": (lambda C, R: (4,), "float32"),
     "is_grasped": (lambda C, R: (), "bool"),
     "episode_index": (lambda C, R: (), "int64"),
     "goal2d_exact": (lambda C, R: (2 * C,), "float32"),

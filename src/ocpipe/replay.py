@@ -77,7 +77,7 @@ class Replayer:
         reset_kwargs = dict(episode.get("reset_kwargs") or {})
         reset_kwargs["seed"] = episode["episode_seed"]
         self.env.reset(**reset_kwargs)
-        rows: dict[str, list] = {k: [] for k in ("rgb", "seg", "qpos", "tcp_pos", "obj_pos", "goal_pos", "is_grasped",
+        rows: dict[str, list] = {k: [] for k in ("rgb", "seg", "qpos", "tcp_pos", "obj_pos", "obj_quat", "goal_pos", "is_grasped",
                                                  "cam_intrinsic", "cam_extrinsic")}
         max_err, info = 0.0, {}
         for t, action in enumerate(actions):

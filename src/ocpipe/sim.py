@@ -130,6 +130,7 @@ def task_readouts(env) -> dict[str, np.ndarray]:
         "qpos": u.agent.robot.get_qpos()[0].cpu().numpy(),
         "tcp_pos": u.agent.tcp.pose.p[0].cpu().numpy(),
         "obj_pos": obj.pose.p[0].cpu().numpy(),
+        "obj_quat": obj.pose.q[0].cpu().numpy(),  # wxyz
         "goal_pos": goal[0].cpu().numpy(),
         "is_grasped": bool(u.agent.is_grasping(obj)[0].item()),
     }

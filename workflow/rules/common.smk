@@ -4,7 +4,7 @@
 wildcard_constraints:
     task="PickCube-v1|StackCube-v1",
     cams="dual|native",
-    encoder="slots_ssl|spot|dino_cls|dino_grid4|dino_dense",
+    encoder="slots_ssl|spot|dino_cls|dino_grid4|dino_dense|state",
     res=r"\d+",
     shard=r"\d+",
     exp=r"[A-Za-z0-9][A-Za-z0-9_-]*",

@@ -6,6 +6,8 @@ def encoder_checkpoint(w):
     """The checkpoint file a features job depends on (a workflow output, or a user-given weight file)."""
     if w.encoder == "slots_ssl":
         return "results/encoders/slots_ssl/model.pt"
+    if w.encoder == "state":  # the privileged-state control reads poses from the frames store
+        return []
     spot, dino = config["encoders"]["spot"], config["encoders"]["dino"]
     if w.encoder == "spot":
         if spot["checkpoint"]:

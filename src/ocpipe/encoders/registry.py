@@ -8,7 +8,7 @@ from ..frames_store import open_store
 
 SLOT_ENCODERS = ("slots_ssl", "spot")
 DINO_READOUTS = ("cls", "grid4", "dense")
-ENCODERS = SLOT_ENCODERS + tuple(f"dino_{r}" for r in DINO_READOUTS)
+ENCODERS = SLOT_ENCODERS + tuple(f"dino_{r}" for r in DINO_READOUTS) + ("state",)
 
 
 def build(name: str, encoders_cfg: dict, frames_path: str | Path, trained_checkpoint: str | Path | None = None):
@@ -18,6 +18,10 @@ def build(name: str, encoders_cfg: dict, frames_path: str | Path, trained_checkp
     user-given weights come from ``encoders_cfg`` and a missing file names its config key."""
     if name not in ENCODERS:
         raise ValueError(f"unknown encoder {name!r}; known: {', '.join(ENCODERS)}")
+    if name == "state":
+        from .state import StateEncoder
+
+        return StateEncoder()
     store = open_store(frames_path)
     if name == "slots_ssl":
         from .frozen_ssl import FrozenSSLSlots
@@ -39,5 +43,7 @@ def tokens_per_camera(name: str, encoders_cfg: dict) -> int:
         return int(encoders_cfg["slots_ssl"]["num_slots"])
     if name == "spot":
         return 7
+    if name == "state":
+        return 1
     patches = encoders_cfg["dino"]["image_size"] // 16
     return {"dino_cls": 1, "dino_grid4": 16, "dino_dense": patches * patches}[name]

@@ -4,7 +4,13 @@ Per timestep the sequence holds, in this order: the visual tokens of every camer
 (3-layer MLP), one goal token (2d: 3-layer MLP of the 4-vector; 3d: linear of xyz; absent for goal 'none') and
 one learnable action token. Learned positional embeddings cover the whole T-step sequence; a causal GPT-style
 decoder (pre-norm) runs over it, and the current step's action token is read out by a 3-layer MLP into
-H x 8 actions (joints z-scored, gripper raw). With `gripper: bce` a separate 3-layer MLP gives H gripper logits."""
+H x 8 actions (joints z-scored, gripper raw). With `gripper: bce` a separate 3-layer MLP gives H gripper logits.
+
+Departures from the study, each off in config/thesis.yaml: `token_norm: zscore` standardizes every visual token
+dimension with training-set statistics held in the model (the frozen encoders' dimensions differ in scale by
+orders of magnitude, and a 64-wide projection trained for a few epochs does not undo that); `aux_object_weight`
+> 0 adds a head that predicts the manipulated object's position from the current action token, so the features
+the action read-out uses must carry where the object is."""
 
 from __future__ import annotations
 
@@ -18,7 +24,7 @@ PROPRIO_DIMS = {"joints7": 7, "qpos9_global": 9, "qpos9_grouped": 9}
 
 
 class SequencePolicy(nn.Module):
-    def __init__(self, policy: dict, K: int, D: int):
+    def __init__(self, policy: dict, K: int, D: int, token_stats: tuple | None = None):
         super().__init__()
         W, heads = policy["width"], policy["heads"]
         self.T, self.H = policy["window"], policy["horizon"]
@@ -39,6 +45,10 @@ class SequencePolicy(nn.Module):
         self.norm = nn.LayerNorm(W)
         self.readout = mlp([W, W, W, self.H * (7 if self.bce else 8)])
         self.gripper_head = mlp([W, W, W, self.H]) if self.bce else None
+        mean, std = token_stats if token_stats is not None else (torch.zeros(D), torch.ones(D))
+        self.register_buffer("token_mean", torch.as_tensor(mean, dtype=torch.float32).reshape(D))
+        self.register_buffer("token_std", torch.as_tensor(std, dtype=torch.float32).reshape(D))
+        self.aux_head = mlp([W, W, 3]) if policy.get("aux_object_weight", 0) > 0 else None
         nn.init.normal_(self.pos, std=0.02)
         nn.init.normal_(self.action_token, std=0.02)
 
@@ -47,7 +57,7 @@ class SequencePolicy(nn.Module):
         B, T = tokens.shape[:2]
         if T != self.T:
             raise ValueError(f"policy expects windows of T={self.T} steps, got {T}")
-        vis = self.visual(tokens)  # (B, T, C, k, W)
+        vis = self.visual((tokens - self.token_mean) / self.token_std)  # (B, T, C, k, W)
         if self.fusion is not None:
             vis = self.fusion(vis)
         parts = [vis.flatten(2, 3), self.proprio(proprio)[:, :, None]]
@@ -56,8 +66,9 @@ class SequencePolicy(nn.Module):
         parts.append(self.action_token.expand(B, T, 1, -1))
         return torch.cat(parts, dim=2).flatten(1, 2) + self.pos
 
-    def forward(self, tokens, proprio, goal, all_steps: bool = False) -> torch.Tensor:
-        """-> (B, H, 8) predictions for the current step, or (B, T, H, 8) for every step's action token."""
+    def forward(self, tokens, proprio, goal, all_steps: bool = False, aux: bool = False):
+        """-> (B, H, 8) predictions for the current step, or (B, T, H, 8) for every step's action token; with
+        ``aux`` also the auxiliary object-position prediction (B, 3) of the current step."""
         seq = self.tokens(tokens, proprio, goal)
         L = seq.shape[1]
         mask = nn.Transformer.generate_square_subsequent_mask(L, device=seq.device, dtype=seq.dtype)
@@ -73,7 +84,10 @@ class SequencePolicy(nn.Module):
             out = out.reshape(B, S, self.H, 8)
         if self.tanh:
             out = torch.cat([torch.tanh(out[..., :7]), out[..., 7:]], -1)
-        return out if all_steps else out[:, 0]
+        out = out if all_steps else out[:, 0]
+        if aux:
+            return out, self.aux_head(act[:, -1]) if self.aux_head is not None else None
+        return out
 
 
 def loss_terms(pred: torch.Tensor, target: torch.Tensor, weights: torch.Tensor, bce: bool) -> dict[str, torch.Tensor]:

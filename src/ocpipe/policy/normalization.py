@@ -1,6 +1,9 @@
 """Normalization statistics, computed once from the training frames and stored in every checkpoint.
 
 Actions: the 7 joint targets are z-scored per dimension; the gripper command (-1/+1) is left untouched.
+With `joint_targets: residual` the model predicts each target minus the current joints instead, z-scored per
+(horizon step, joint): a joint moves a few hundredths of a radian per step while its absolute angle spans ~1 rad,
+so the same normalized error is an order of magnitude finer in radians.
 Proprioception, by the `proprio` setting:
   joints7        qpos[:7], z-scored per joint.
   qpos9_global   qpos[:9] with ONE mean/std pooled over all 9 dims: the thesis' pathology, since finger widths
@@ -39,6 +42,23 @@ def compute(qpos: np.ndarray, action: np.ndarray, proprio_mode: str) -> dict[str
             "proprio_mean": f32(pm), "proprio_std": f32(np.maximum(psd, EPS))}
 
 
+def residual_stats(action: np.ndarray, qpos: np.ndarray, current: np.ndarray, targets: np.ndarray
+                   ) -> dict[str, np.ndarray]:
+    """Per-(horizon step, dim) stats of target minus current joints; ``targets`` (n, H) are the target frames of
+    the current frames ``current`` (n,). The gripper stays untouched."""
+    res = action[targets] - residual_base(qpos[current])[:, None]
+    mean, std = res.mean(0), res.std(0)
+    mean[:, 7], std[:, 7] = 0.0, 1.0
+    return {"action_mean": mean.astype(np.float32), "action_std": np.maximum(std, EPS).astype(np.float32)}
+
+
+def residual_base(qpos: np.ndarray) -> np.ndarray:
+    """What a residual action is relative to: the current arm joints, and 0 for the gripper."""
+    base = np.zeros((*qpos.shape[:-1], 8), dtype=np.float32)
+    base[..., :7] = qpos[..., :7]
+    return base
+
+
 def proprio(qpos: np.ndarray, stats: dict) -> np.ndarray:
     dims = len(stats["proprio_mean"])
     return ((qpos[..., :dims] - stats["proprio_mean"]) / stats["proprio_std"]).astype(np.float32)
@@ -48,8 +68,12 @@ def action_to_model(action: np.ndarray, stats: dict) -> np.ndarray:
     return ((action - stats["action_mean"]) / stats["action_std"]).astype(np.float32)
 
 
-def action_from_model(pred: np.ndarray, stats: dict, gripper_threshold: float = 0.0) -> np.ndarray:
-    """De-normalize joints; gripper = +1 (closed) if the output (or BCE logit) > threshold else -1."""
+def action_from_model(pred: np.ndarray, stats: dict, gripper_threshold: float = 0.0,
+                      qpos: np.ndarray | None = None) -> np.ndarray:
+    """De-normalize joints (adding the current joints ``qpos`` back for residual targets); gripper = +1 (closed)
+    if the output (or BCE logit) > threshold else -1. ``pred`` is (H, 8) or (B, H, 8)."""
     out = pred * stats["action_std"] + stats["action_mean"]
+    if qpos is not None:
+        out = out + residual_base(np.asarray(qpos, dtype=np.float32))[..., None, :]
     out[..., 7] = np.where(pred[..., 7] > gripper_threshold, 1.0, -1.0)
     return out.astype(np.float32)

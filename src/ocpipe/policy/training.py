@@ -27,12 +27,12 @@ from tqdm import tqdm
 
 from ..atomic import atomic_path
 from ..devices import pick_device
-from ..features import open_features
+from ..features import PolicyTokens, open_features
 from ..frames_store import open_store
 from . import normalization
 from .model import SequencePolicy, loss_terms
 from .weighting import loss_weights
-from .windows import ChunkWindowLoader, Labels
+from .windows import ChunkWindowLoader, Labels, action_frames
 
 log = logging.getLogger(__name__)
 
@@ -49,23 +49,65 @@ def goal_array(frames, policy: dict) -> np.ndarray:
     return goal
 
 
+def split_episodes(offsets, val_episodes: int, source: str = "") -> tuple[np.ndarray, np.ndarray]:
+    """-> (training frames, validation frames): the last ``val_episodes`` episodes are held out for the open-loop
+    check and never trained on."""
+    offsets = np.asarray(offsets, dtype=np.int64)
+    E = len(offsets) - 1
+    if val_episodes >= E:
+        raise ValueError(f"policy.val_episodes is {val_episodes} but {source} has only {E} episodes")
+    cut = offsets[E - val_episodes]
+    return np.arange(cut), np.arange(cut, offsets[-1])
+
+
+def token_stats(tokens, frames: np.ndarray, max_frames: int = 20000) -> tuple[np.ndarray, np.ndarray]:
+    """Per-dimension mean/std of the visual tokens (pooled over cameras and slots) on evenly spaced training frames."""
+    pick = frames[np.unique(np.linspace(0, len(frames) - 1, min(len(frames), max_frames)).round().astype(int))]
+    x = np.concatenate([tokens[lo : lo + 1024][pick[(pick >= lo) & (pick < lo + 1024)] - lo]
+                        for lo in range(0, int(pick[-1]) + 1, 1024)]).astype(np.float64)
+    x = x.reshape(-1, x.shape[-1])
+    return x.mean(0).astype(np.float32), np.maximum(x.std(0), normalization.EPS).astype(np.float32)
+
+
 def load_data(policy: dict, features_path, frames_path):
-    """-> (tokens zarr array, Labels, normalization stats computed from these frames, meta)."""
+    """-> (tokens array, Labels, normalization stats computed from the training frames, meta, (train, val) frames)."""
     feats, frames = open_features(features_path), open_store(frames_path)
-    tokens = feats["tokens"]
+    tokens = PolicyTokens(feats, policy.get("slot_geometry", False), str(features_path))
     if tokens.shape[0] != frames["qpos"].shape[0]:
         raise ValueError(f"{features_path} has {tokens.shape[0]} frames but {frames_path} has {frames['qpos'].shape[0]}")
     if max(policy["cameras"]) >= tokens.shape[1]:
         raise ValueError(f"policy.cameras {policy['cameras']}: {features_path} has {tokens.shape[1]} cameras")
+    offsets = frames.attrs["episode_offsets"]
+    train_frames, val_frames = split_episodes(offsets, policy.get("val_episodes", 0), str(frames_path))
     qpos, action = frames["qpos"][:].astype(np.float32), frames["action"][:].astype(np.float32)
-    stats = normalization.compute(qpos, action, policy["proprio"])
-    labels = Labels.from_offsets(frames.attrs["episode_offsets"], normalization.proprio(qpos, stats),
-                                 goal_array(frames, policy), normalization.action_to_model(action, stats))
+    stats = normalization.compute(qpos[train_frames], action[train_frames], policy["proprio"])
+    extra = {}
+    if policy.get("joint_targets", "absolute") == "residual":
+        bounds = Labels.from_offsets(offsets, qpos, qpos, action)
+        stats.update(normalization.residual_stats(action, qpos, train_frames,
+                                                  action_frames(train_frames, bounds, policy["horizon"])))
+        extra["residual"] = (normalization.residual_base(qpos), stats["action_mean"], stats["action_std"])
+        model_action = action
+    else:
+        model_action = normalization.action_to_model(action, stats)
+    if policy.get("aux_object_weight", 0) > 0:
+        obj = frames["obj_pos"][:].astype(np.float32)
+        stats["aux_mean"], stats["aux_std"] = obj[train_frames].mean(0), np.maximum(obj[train_frames].std(0), 1e-6)
+        extra["aux"] = ((obj - stats["aux_mean"]) / stats["aux_std"]).astype(np.float32)
+    if policy.get("token_norm", "none") == "zscore":
+        stats["token_mean"], stats["token_std"] = token_stats(tokens, train_frames)
+    labels = Labels.from_offsets(offsets, normalization.proprio(qpos, stats), goal_array(frames, policy),
+                                 model_action, **extra)
     meta = {"K": int(tokens.shape[2]), "D": int(tokens.shape[3]), "features_store": str(features_path),
             "frames_store": str(frames_path), "encoder": feats.attrs.get("encoder"),
             "encoder_checkpoint_sha256": feats.attrs.get("checkpoint_sha256"),
             "cameras": [frames.attrs["cameras"][c] for c in policy["cameras"]], "tokens_dtype": str(tokens.dtype)}
-    return tokens, labels, stats, meta
+    return tokens, labels, stats, meta, (train_frames, val_frames)
+
+
+def build_model(policy: dict, meta: dict, stats: dict) -> SequencePolicy:
+    token = (stats["token_mean"], stats["token_std"]) if "token_mean" in stats else None
+    return SequencePolicy(policy, meta["K"], meta["D"], token)
 
 
 def _fingerprint(policy: dict, seed: int, meta: dict) -> str:
@@ -90,11 +132,11 @@ def train(policy: dict, seed: int, features_path, frames_path, out_dir, threads:
     out_dir = Path(out_dir)
     work = out_dir / ".train"
     device = pick_device(policy["device"])
-    tokens, labels, stats, meta = load_data(policy, features_path, frames_path)
+    tokens, labels, stats, meta, (train_frames, val_frames) = load_data(policy, features_path, frames_path)
     fingerprint = _fingerprint(policy, seed, meta)
 
     torch.manual_seed(seed)
-    model = SequencePolicy(policy, meta["K"], meta["D"]).to(device)
+    model = build_model(policy, meta, stats).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=policy["lr"], weight_decay=policy["weight_decay"])
     history: list[dict] = []
     start = 0
@@ -112,21 +154,27 @@ def train(policy: dict, seed: int, features_path, frames_path, out_dir, threads:
     work.mkdir(parents=True, exist_ok=True)
 
     loader = ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], policy["batch_size"],
-                               policy["cameras"], seed)
+                               policy["cameras"], seed, frames=train_frames)
+    val_loader = ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], 256, policy["cameras"], seed,
+                                   frames=val_frames) if len(val_frames) else None
+    aux_weight = policy.get("aux_object_weight", 0.0)
     keep = set(saved_epochs(policy))
     for epoch in range(start, policy["epochs"]):
         torch.manual_seed(_epoch_seed(seed, epoch))
         model.train()
         t0 = time.perf_counter()
-        sums = {"loss": 0.0, "loss_joints": 0.0, "loss_gripper": 0.0}
+        sums = {"loss": 0.0, "loss_joints": 0.0, "loss_gripper": 0.0, "loss_aux": 0.0}
         n = 0
         bar = tqdm(loader.epoch(epoch), total=len(loader), disable=not progress, unit="batch",
                    desc=f"{policy.get('name', 'policy')} epoch {epoch + 1}/{policy['epochs']}")
         for batch in bar:
             batch = {k: v.to(device) for k, v in batch.items()}
-            pred = model(batch["tokens"], batch["proprio"], batch["goal"])
+            pred, aux = model(batch["tokens"], batch["proprio"], batch["goal"], aux=True)
             w = loss_weights(policy["loss_weighting"], batch["progress"], epoch, policy["time_weight_warmup_epochs"])
             terms = loss_terms(pred, batch["action"], w, policy["gripper"] == "bce")
+            terms["loss_aux"] = ((aux - batch["aux"]) ** 2).mean() if aux is not None else torch.zeros(())
+            if aux is not None:
+                terms["loss"] = terms["loss"] + aux_weight * terms["loss_aux"]
             opt.zero_grad(set_to_none=True)
             terms["loss"].backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), policy["grad_clip"])
@@ -137,7 +185,8 @@ def train(policy: dict, seed: int, features_path, frames_path, out_dir, threads:
             n += b
             bar.set_postfix(loss=f"{sums['loss'] / n:.4f}")
         row = {"epoch": epoch + 1, **{k: v / n for k, v in sums.items()}, "lr": policy["lr"],
-               "seconds": time.perf_counter() - t0}
+               "seconds": time.perf_counter() - t0,
+               **(openloop_error(model, val_loader, labels, stats, policy, device) if val_loader else {})}
         history.append(row)
         log.info("epoch %d: %s", epoch + 1, row)
         state = {"model": model.state_dict(), "optimizer": opt.state_dict(), "policy": policy, "seed": seed,
@@ -159,10 +208,34 @@ def train(policy: dict, seed: int, features_path, frames_path, out_dir, threads:
     return table
 
 
+@torch.inference_mode()
+def openloop_error(model, loader: ChunkWindowLoader, labels: Labels, stats: dict, policy: dict, device) -> dict:
+    """Action error on held-out demo frames, without a simulator: the predicted H-step chunk against the expert's
+    (joint error in radians, mean over joints and steps, and for the first step alone; share of gripper commands
+    that agree). Cheap, and it separates 'did not learn the demos' from 'fails in closed loop'."""
+    model.eval()
+    joint_err, first_err, grip_ok, n = 0.0, 0.0, 0.0, 0
+    for batch in loader.epoch(0):
+        frames = batch["frame"].numpy()
+        pred = model(batch["tokens"].to(device), batch["proprio"].to(device), batch["goal"].to(device)).cpu().numpy()
+        qpos = labels.residual[0][frames][:, :7] if labels.residual is not None else None
+        got = normalization.action_from_model(pred, stats, qpos=qpos)
+        want = labels.action[action_frames(frames, labels, policy["horizon"])]
+        if labels.residual is None:
+            want = normalization.action_from_model(want, stats)
+        err = np.abs(got[..., :7] - want[..., :7])
+        joint_err += float(err.mean(axis=(1, 2)).sum())
+        first_err += float(err[:, 0].mean(axis=1).sum())
+        grip_ok += float((np.sign(got[..., 7]) == np.sign(want[..., 7])).mean(axis=1).sum())
+        n += len(frames)
+    model.train()
+    return {"val_joint_err_rad": joint_err / n, "val_first_joint_err_rad": first_err / n, "val_gripper_agree": grip_ok / n}
+
+
 def load_policy(path, device: str | torch.device = "cpu"):
     """A saved checkpoint -> (model in eval mode, normalization stats, policy settings, meta)."""
     ckpt = torch.load(path, map_location=device, weights_only=False)
-    model = SequencePolicy(ckpt["policy"], ckpt["meta"]["K"], ckpt["meta"]["D"]).to(device)
+    model = build_model(ckpt["policy"], ckpt["meta"], ckpt["norm"]).to(device)
     model.load_state_dict(ckpt["model"])
     model.eval()
     stats = {k: np.asarray(v) for k, v in ckpt["norm"].items()}

@@ -22,17 +22,28 @@ class Labels:
 
     proprio: np.ndarray  # (N, P)
     goal: np.ndarray  # (N, G), G = 0 for no goal
-    action: np.ndarray  # (N, 8)
+    action: np.ndarray  # (N, 8): normalized absolute targets, or raw ones when ``residual`` is set
     start: np.ndarray  # (N,) first frame of the frame's episode
     end: np.ndarray  # (N,) one past its last frame
+    # residual targets: (base (N, 8) the current joints, mean (H, 8), std (H, 8)); target = (a - base - mean) / std
+    residual: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    aux: np.ndarray | None = None  # (N, A) auxiliary per-frame targets (normalized object position), training only
 
     @classmethod
-    def from_offsets(cls, offsets, proprio, goal, action) -> "Labels":
+    def from_offsets(cls, offsets, proprio, goal, action, **extra) -> "Labels":
         offsets = np.asarray(offsets, dtype=np.int64)
         lengths = np.diff(offsets)
         if (lengths <= 0).any():
             raise ValueError(f"episode {int(np.argmax(lengths <= 0))} has no frames (episode_offsets {offsets.tolist()})")
-        return cls(proprio, goal, action, np.repeat(offsets[:-1], lengths), np.repeat(offsets[1:], lengths))
+        return cls(proprio, goal, action, np.repeat(offsets[:-1], lengths), np.repeat(offsets[1:], lengths), **extra)
+
+    def targets(self, frames: np.ndarray, act: np.ndarray) -> np.ndarray:
+        """(n, H, 8) model-space action targets of current frames ``frames`` with target frames ``act``."""
+        a = self.action[act]
+        if self.residual is None:
+            return a
+        base, mean, std = self.residual
+        return ((a - base[frames][:, None] - mean) / std).astype(np.float32)
 
 
 def window_frames(frames: np.ndarray, labels: Labels, T: int) -> np.ndarray:
@@ -56,13 +67,17 @@ def make_batch(tokens: np.ndarray, base: int, frames: np.ndarray, labels: Labels
     """Assemble samples for ``frames``; ``tokens`` holds store frames base .. base+len(tokens)."""
     win = window_frames(frames, labels, T)
     act = action_frames(frames, labels, H)
-    return {
+    batch = {
         "tokens": torch.from_numpy(np.ascontiguousarray(tokens[win - base][:, :, cameras], dtype=np.float32)),
         "proprio": torch.from_numpy(labels.proprio[win]),
         "goal": torch.from_numpy(labels.goal[win]),
-        "action": torch.from_numpy(labels.action[act]),
+        "action": torch.from_numpy(labels.targets(frames, act)),
         "progress": torch.from_numpy(progress(act, frames, labels)),
+        "frame": torch.from_numpy(frames),
     }
+    if labels.aux is not None:
+        batch["aux"] = torch.from_numpy(labels.aux[frames])
+    return batch
 
 
 class ChunkWindowLoader:
