@@ -13,6 +13,7 @@ cores."""
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -28,21 +29,32 @@ from ocpipe.policy.training import train
 REPO = Path(__file__).resolve().parents[1]
 
 
-def parse_lever(arg: str, config: dict) -> tuple[str, dict]:
+def parse_lever(arg: str, config: dict) -> tuple[dict, dict]:
+    """'exp:key=v,evaluation.key=v' -> (policy settings, evaluation settings)."""
     name, _, rest = arg.partition(":")
     overrides = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in rest.split(",") if kv)}
-    return arg, {**experiments.resolve(config, name), **overrides}
+    evaluation_cfg = dict(config["evaluation"])
+    for k in [k for k in overrides if k.startswith("evaluation.")]:
+        key = k.removeprefix("evaluation.")
+        value = overrides.pop(k)
+        evaluation_cfg[key] = {**evaluation_cfg[key], "PickCube-v1": value} if key == "episode_cap" else value
+    return {**experiments.resolve(config, name), **overrides}, evaluation_cfg
 
 
 def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: int, out_root: Path) -> dict:
     results = REPO / "results"
     store = experiments.features_store(policy)
     enc_ckpt = results / "encoders" / "slots_ssl" / "model.pt" if policy["encoder"] == "slots_ssl" else None
-    out_dir = out_root / label.replace(":", "__").replace("=", "-").replace(",", "_")
+    # one training per distinct policy: levers that differ only in evaluation settings share it
+    key = hashlib.sha256(json.dumps({**policy, "name": None}, sort_keys=True).encode()).hexdigest()[:12]
+    out_dir = out_root / f"{policy['name']}-{key}"
     t0 = time.perf_counter()
-    log = train(policy, config["seed"], results / "features" / f"{store}.zarr",
-                results / "frames" / f"{experiments.frames_store(policy)}.zarr", out_dir, threads=threads)
-    train_s = time.perf_counter() - t0
+    if (out_dir / "train_log.parquet").is_file():
+        log = pl.read_parquet(out_dir / "train_log.parquet")
+    else:
+        log = train(policy, config["seed"], results / "features" / f"{store}.zarr",
+                    results / "frames" / f"{experiments.frames_store(policy)}.zarr", out_dir, threads=threads)
+    train_s = float(log["seconds"].sum())
     torch.set_num_threads(threads)
     ckpt = out_dir / "checkpoints" / f"epoch_{policy['epochs']:04d}.pt"
     loop = evaluation.ClosedLoop(ckpt, config, results / "frames" / f"{experiments.frames_store(policy)}.zarr",
@@ -55,7 +67,7 @@ def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: in
     finally:
         loop.close()
     last = log.row(-1, named=True)
-    row = {"lever": label, "epochs": policy["epochs"], "train_s": round(train_s, 1),
+    row = {"lever": label, "dir": out_dir.name, "epochs": policy["epochs"], "train_s": round(train_s, 1),
            "val_joint_err_rad": last.get("val_joint_err_rad"), "val_first_joint_err_rad": last.get("val_first_joint_err_rad"),
            "val_gripper_agree": last.get("val_gripper_agree"), "episodes": len(eps),
            "successes": int(eps.filter(~pl.col("trivial"))["success"].sum()), "sr": evaluation.success_rate(eps),
@@ -76,8 +88,8 @@ def main() -> None:
     out_root = Path(args.out)
     out_root.mkdir(parents=True, exist_ok=True)
     for arg in args.levers:
-        label, policy = parse_lever(arg, config)
-        row = run_lever(label, policy, config, args.episodes, args.threads, out_root)
+        policy, evaluation_cfg = parse_lever(arg, config)
+        row = run_lever(arg, policy, {**config, "evaluation": evaluation_cfg}, args.episodes, args.threads, out_root)
         csv = out_root / "levers.csv"
         table = pl.DataFrame([row])
         if csv.is_file():

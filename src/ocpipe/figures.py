@@ -23,8 +23,11 @@ def _save(fig, path) -> None:
 
 
 def fig5_1(train_logs: dict[str, pl.DataFrame], sweeps: dict[str, pl.DataFrame], path, window: int = 10) -> None:
-    """Training loss (raw and rolling mean) and mean evaluation return per saved epoch, per method."""
-    fig, (ax_loss, ax_ret) = plt.subplots(1, 2, figsize=(11, 4))
+    """Training loss (raw and rolling mean), mean evaluation return per saved epoch, and (when the training log
+    has it) the open-loop joint error on held-out demos per epoch, per method."""
+    openloop = any("val_joint_err_rad" in logs.columns for logs in train_logs.values())
+    fig, axes = plt.subplots(1, 3 if openloop else 2, figsize=(16 if openloop else 11, 4))
+    ax_loss, ax_ret = axes[:2]
     for i, (method, logs) in enumerate(train_logs.items()):
         colour = f"C{i}"
         ax_loss.plot(logs["epoch"], logs["loss"], color=colour, alpha=0.25, lw=1)
@@ -33,10 +36,15 @@ def fig5_1(train_logs: dict[str, pl.DataFrame], sweeps: dict[str, pl.DataFrame],
         sweep = sweeps[method].group_by("checkpoint").agg(pl.col("return").mean(), pl.col("success").mean())
         sweep = sweep.sort("checkpoint")
         ax_ret.plot(sweep["checkpoint"], sweep["return"], "o-", color=colour, label=method)
+        if openloop and "val_joint_err_rad" in logs.columns:
+            axes[2].plot(logs["epoch"], logs["val_joint_err_rad"], "o-", color=colour, ms=3, label=method)
+    if openloop:
+        axes[2].set(xlabel="epoch", ylabel="mean |joint error| (rad)", yscale="log",
+                    title="Open-loop action error, held-out demos")
     ax_loss.set(xlabel="epoch", ylabel="training loss", yscale="log",
                 title=f"Training loss ({window}-epoch rolling mean)")
     ax_ret.set(xlabel="epoch (checkpoint)", ylabel="mean episode return", title="Evaluation reward per epoch")
-    for ax in (ax_loss, ax_ret):
+    for ax in axes:
         ax.legend()
         ax.grid(alpha=0.3)
     _save(fig, path)

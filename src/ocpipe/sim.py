@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -102,6 +103,10 @@ def make_env(task: str, config: dict, camera_set: str | None = None, resolution:
     if task not in TASKS:
         raise ValueError(f"unknown task {task!r}; known: {', '.join(TASKS)}")
     sim = config["sim"]
+    if sim.get("lavapipe_threads") is not None:
+        # Mesa's CPU Vulkan driver reads this once, when it loads; a value in the caller's environment wins.
+        # GPU drivers ignore it.
+        os.environ.setdefault("LP_NUM_THREADS", str(sim["lavapipe_threads"]))
     cams = camera_specs(config, camera_set) if camera_set else []
     keep = [SIM_CAMERA_UID[n] for n in CAMERA_SETS[camera_set]] if camera_set else []
     sensor_overrides = {"shader_pack": sim["shader"]}

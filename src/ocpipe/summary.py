@@ -43,8 +43,10 @@ def summary_lines(results: str | Path) -> list[str]:
         log = pl.read_parquet(path)
         best = path.parent / "best.json"
         picked = f", best checkpoint epoch {json.loads(best.read_text())['epoch']}" if best.is_file() else ""
+        openloop = (f", open-loop joint error {log['val_joint_err_rad'][-1]:.4f} rad, gripper agreement "
+                    f"{log['val_gripper_agree'][-1]:.3f} (held-out demos)") if "val_joint_err_rad" in log.columns else ""
         lines.append(f"policy    {path.parent.name}: {log['epoch'].max()} epochs, {log['seconds'].mean():.1f} s/epoch, "
-                     f"final loss {log['loss'][-1]:.4f}{picked}")
+                     f"final loss {log['loss'][-1]:.4f}{openloop}{picked}")
     for path in sorted(results.glob("tables/table5_*.md")):
         lines += ["", path.read_text().rstrip()]
     return lines or [f"nothing built under {results} yet"]
