@@ -39,5 +39,5 @@ def policy_settings(**overrides) -> dict:
                 dropout=0.1, fusion="concat", visual_head="tokens", action_head="linear", gripper="regression",
                 loss_weighting="uniform", time_weight_warmup_epochs=0, epochs=4, save_every=2, batch_size=16,
                 lr=1e-3, weight_decay=0.01, grad_clip=1.0, device="cpu", token_norm="none", slot_geometry=False,
-                aux_object_weight=0.0, joint_targets="absolute", val_episodes=0, name="test")
+                aux_object_weight=0.0, proprio_noise=0.0, joint_targets="absolute", val_episodes=0, name="test")
     return {**base, **overrides}

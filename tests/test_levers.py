@@ -124,3 +124,13 @@ def test_openloop_error_is_zero_for_a_policy_that_returns_the_expert_chunk(tmp_p
         loader.epoch = patched_epoch
         err = openloop_error(Oracle(), loader, labels, stats, policy, "cpu")
         assert err["val_joint_err_rad"] == pytest.approx(0.0, abs=1e-5) and err["val_gripper_agree"] == 1.0
+
+
+def test_proprio_noise_changes_training_and_stays_seeded(tmp_path):
+    features, frames = write_stores(tmp_path)
+    losses = {}
+    for name, noise in (("a", 0.0), ("b", 0.5), ("c", 0.5)):
+        table = train(policy_settings(proprio_noise=noise, epochs=1, save_every=1), 0, features, frames,
+                      tmp_path / name, progress=False)
+        losses[name] = table["loss"].to_list()
+    assert losses["b"] == losses["c"] and losses["a"] != losses["b"]

@@ -24,7 +24,8 @@ TINY = {
     "report": {"contact_sheet_episodes": 2, "contact_sheet_steps": 3},
     "encoders": {"slots_ssl": {"train_stores": ["PickCube-v1_dual_64"], "holdout_episodes": 1, "steps": 30,
                                "grid": 16, "batch_size": 8, "warmup_steps": 5, "slot_dim": 32, "feature_dim": 32}},
-    "features": {"batch_size": 32, "chunk_frames": 64, "attention_pairs": [[0, 0], [1, 60]]},
+    "features": {"batch_size": 32, "chunk_frames": 64, "attention_pairs": [[0, 0], [1, 60]],
+                 "probe_mlp_epochs": 5},
     "policy": {"resolution": 64, "window": 3, "horizon": 4, "width": 32, "layers": 2, "heads": 4, "epochs": 2,
                "save_every": 2, "batch_size": 16, "lr": 0.001, "val_episodes": 1},
     "evaluation": {"episode_cap": {"PickCube-v1": 12, "StackCube-v1": 12}, "execute_actions": 2, "sweep_episodes": 2,
@@ -165,6 +166,7 @@ def test_features_stores_hold_per_frame_tokens_and_masks(tiny_run):
         diag = json.loads((res / "features" / f"{name}_slots_ssl.diagnostics.json").read_text())
         assert set(diag["mask_diagnostics"]) == set(frames.attrs["cameras"])
         assert diag["decomposition"]["all"]["fg_ari_images"] > 0
+        assert diag["probes"]["test_episodes"] == 1 and diag["probes"]["obj_pos"]["mlp"]["median_cm"] >= 0
         assert (res / "figures" / f"attention_{name}_slots_ssl.png").stat().st_size > 10_000
     held = json.loads((res / "encoders" / "slots_ssl" / "held_out_decomposition.json").read_text())
     assert held["held_out"]["PickCube-v1_dual_64"]["episodes"] == 1
@@ -255,11 +257,12 @@ def test_table5_1_end_to_end_and_identical_on_a_rerun(tiny_run, tmp_path):
     import polars as pl
 
     table = pl.read_csv(tiny_run / "results" / "tables" / "table5_1.csv")
-    assert table["Method"].to_list() == ["Pure Visual", "2D-Spatial-Proj", "Explicit-3D-GT"]
-    assert table["Runs"].to_list() == [2, 2, 2] and table["Episodes per run"].to_list() == [2, 2, 2]
+    assert table["Method"].to_list() == ["Pure Visual", "2D-Spatial-Proj", "Explicit-3D-GT",
+                                         "Privileged state (control)"]
+    assert table["Runs"].to_list() == [2] * 4 and table["Episodes per run"].to_list() == [2] * 4
     assert table["SR mean"].is_between(0, 1).all()
     t2 = pl.read_csv(tiny_run / "results" / "tables" / "table5_2.csv")
-    assert (t2["Total"] + table["Trivial excluded"]).to_list() == [4, 4, 4]
+    assert (t2["Total"] + table["Trivial excluded"]).to_list() == [4] * 4
     steps = pl.read_parquet(tiny_run / "results" / "runs" / "goal2d" / "stability" / "run_0.steps.parquet")
     assert {"action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos"} <= set(steps.columns)
     assert steps.group_by("seed").len()["len"].max() <= 12  # the episode cap
@@ -272,3 +275,11 @@ def test_table5_1_end_to_end_and_identical_on_a_rerun(tiny_run, tmp_path):
     snakemake(copy, "--configfile", "tiny.yaml", "--cores", "2", *TABLES)
     for name in ("table5_1.csv", "table5_2.csv", "table5_6.csv"):
         assert (copy / "results" / "tables" / name).read_text() == (tiny_run / "results" / "tables" / name).read_text()
+
+
+def test_summary_names_probes_and_open_loop_error(tiny_run):
+    from ocpipe.summary import summary_lines
+
+    text = "\n".join(summary_lines(tiny_run / "results"))
+    assert "position probes, median cm on 1 held-out episodes: obj ridge" in text
+    assert "open-loop joint error" in text and "Privileged state (control)" in text

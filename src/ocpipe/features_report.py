@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import slot_metrics
+from . import probes, slot_metrics
 from .decomposition import score_masks
 from .features import open_features
 from .frames_store import open_store
@@ -14,9 +14,11 @@ from .frames_store import open_store
 MAX_DIAGNOSTIC_FRAMES = 4000  # mask statistics on an evenly spaced sample: they are means, the sample is plenty
 
 
-def diagnostics(frames_path: str | Path, features_path: str | Path, holdout_episodes: int | None) -> dict:
+def diagnostics(frames_path: str | Path, features_path: str | Path, holdout_episodes: int | None,
+                probe_holdout: float = 0.15, probe_mlp_epochs: int = 150, seed: int = 0) -> dict:
     """``holdout_episodes``: score decomposition only on the store's last episodes (those the encoder did not
-    train on); None scores every frame (a store the encoder never saw)."""
+    train on); None scores every frame (a store the encoder never saw). ``probe_*``: the position probes of
+    ``probes.probe`` (``probe_mlp_epochs`` 0: ridge alone)."""
     frames, feats = open_store(frames_path), open_features(features_path)
     fa = frames.attrs.asdict()
     tokens = feats["tokens"]
@@ -25,6 +27,11 @@ def diagnostics(frames_path: str | Path, features_path: str | Path, holdout_epis
            "encode_frames_per_second": feats.attrs.get("frames_per_second"),
            "temporal_embedding_diversity": slot_metrics.temporal_diversity(tokens[...].astype(np.float32),
                                                                            frames["episode_index"][...])}
+    episode_index = frames["episode_index"][...]
+    if len(np.unique(episode_index)) >= 2:
+        out["probes"] = probes.probe(tokens[...], {name: frames[name][...] for name in probes.TARGETS
+                                                   if name in frames}, episode_index, probe_holdout, seed,
+                                     probe_mlp_epochs)
     if "masks" not in feats:
         return out
     sample = np.unique(np.linspace(0, N - 1, min(N, MAX_DIAGNOSTIC_FRAMES)).round().astype(int))

@@ -95,6 +95,17 @@ def _env_class(task: str):
     return StudyEnv
 
 
+@functools.cache
+def _lowpoly_env_class(task: str):
+    """The study env with coarser robot and ground visuals (sim.robot_visual_keep / sim.ground_cells): fewer
+    triangles for lavapipe to draw; collision shapes, and so physics, are untouched."""
+    from . import lowpoly
+
+    base = _env_class(task)
+    # a subclass, so isinstance(env, _env_class(task)) still holds (task_readouts relies on it)
+    return type(f"LowPoly{base.__name__}", (lowpoly.LowPolyAgentMixin, base), {"__module__": __name__})
+
+
 def make_env(task: str, config: dict, camera_set: str | None = None, resolution: int = 128, obs_mode: str = "rgb"):
     """A single physx_cpu environment of ``task`` with the cameras of ``camera_set`` rendered at ``resolution``.
 
@@ -112,13 +123,17 @@ def make_env(task: str, config: dict, camera_set: str | None = None, resolution:
     sensor_overrides = {"shader_pack": sim["shader"]}
     if camera_set and "hand" in CAMERA_SETS[camera_set]:
         sensor_overrides["hand_camera"] = {"width": resolution, "height": resolution}
-    cls = _env_class(task)
+    cls, extra = _env_class(task), {}
+    lowpoly = {k: sim.get(k) for k in ("robot_visual_keep", "ground_cells") if sim.get(k) is not None}
+    if camera_set and lowpoly:
+        # only what the cameras see changes; a camera-less env (demo generation) has nothing to gain
+        cls, extra = _lowpoly_env_class(task), lowpoly
     return cls(
         study_cameras=cams, keep_sensors=keep, goal_visible=config["frames"]["goal_marker_visible"],
         near=config["cameras"]["near"], far=config["cameras"]["far"], resolution=resolution,
         obs_mode=obs_mode if camera_set else "state_dict", control_mode=sim["control_mode"],
         sim_backend=sim["backend"], num_envs=1, render_mode=None,
-        sensor_configs=sensor_overrides,
+        sensor_configs=sensor_overrides, **extra,
     )
 
 

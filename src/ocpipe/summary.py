@@ -37,6 +37,12 @@ def summary_lines(results: str | Path) -> list[str]:
         r = json.loads(path.read_text())
         lines.append(f"features  {path.name.removesuffix('.diagnostics.json')}: tokens {r['tokens_shape']}, "
                      f"{_fmt(r.get('encode_frames_per_second'), '.1f')} frames/s encoding")
+        if "probes" in r:
+            p = r["probes"]
+            reads = "; ".join(f"{name.removesuffix('_pos')} " + ", ".join(
+                f"{kind} {v['median_cm']:.1f}" for kind, v in p[name].items()) for name in ("obj_pos", "goal_pos",
+                                                                                            "tcp_pos") if name in p)
+            lines.append(f"          position probes, median cm on {p['test_episodes']} held-out episodes: {reads}")
     for path in sorted(results.glob("runs/*/train_log.parquet")):
         import polars as pl
 

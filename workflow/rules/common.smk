@@ -26,11 +26,16 @@ def resources_of(stage):
     return {k: v for k, v in c.items() if k != "threads" and not (k == "gpu" and not v)}
 
 
+RENDER_ONLY_SIM_KEYS = ("lavapipe_threads", "robot_visual_keep", "ground_cells")
+
+
 def demo_params():
     """Demo jobs read the evaluation pool only to keep demo seeds out of it: pass just its bounds, so changing
     other evaluation settings never regenerates demos."""
     pool = {k: config["evaluation"][k] for k in ("seed_pool_start", "seed_pool_size")}
-    return {**cfg("sim", "demos"), "evaluation": pool}
+    # demo generation renders nothing: the settings of how cameras draw the scene cannot change a demo
+    sim = {k: v for k, v in config["sim"].items() if k not in RENDER_ONLY_SIM_KEYS}
+    return {"sim": sim, **cfg("demos"), "evaluation": pool}
 
 
 def frames_stores():

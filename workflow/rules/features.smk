@@ -47,6 +47,9 @@ rule features_diagnostics:
     params:
         holdout=config["encoders"]["slots_ssl"]["holdout_episodes"],
         train_stores=config["encoders"]["slots_ssl"]["train_stores"],
+        probe_holdout=config["features"]["probe_holdout"],
+        probe_mlp_epochs=config["features"]["probe_mlp_epochs"],
+        seed=config["seed"],
     log:
         "results/logs/features_diagnostics/{task}_{cams}_{res}_{encoder}.log",
     benchmark:

@@ -158,6 +158,7 @@ def train(policy: dict, seed: int, features_path, frames_path, out_dir, threads:
     val_loader = ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], 256, policy["cameras"], seed,
                                    frames=val_frames) if len(val_frames) else None
     aux_weight = policy.get("aux_object_weight", 0.0)
+    proprio_noise = policy.get("proprio_noise", 0.0)
     keep = set(saved_epochs(policy))
     for epoch in range(start, policy["epochs"]):
         torch.manual_seed(_epoch_seed(seed, epoch))
@@ -169,6 +170,8 @@ def train(policy: dict, seed: int, features_path, frames_path, out_dir, threads:
                    desc=f"{policy.get('name', 'policy')} epoch {epoch + 1}/{policy['epochs']}")
         for batch in bar:
             batch = {k: v.to(device) for k, v in batch.items()}
+            if proprio_noise > 0:  # blur the joint history so the policy cannot act on it alone (copycat)
+                batch["proprio"] = batch["proprio"] + proprio_noise * torch.randn_like(batch["proprio"])
             pred, aux = model(batch["tokens"], batch["proprio"], batch["goal"], aux=True)
             w = loss_weights(policy["loss_weighting"], batch["progress"], epoch, policy["time_weight_warmup_epochs"])
             terms = loss_terms(pred, batch["action"], w, policy["gripper"] == "bce")

@@ -1,0 +1,48 @@
+import numpy as np
+import pytest
+
+from ocpipe import probes
+
+
+def _store(rng, episodes=20, frames=40, informative=True):
+    """Per-frame tokens (N, 2, 7, 4) and positions; ``informative``: three token dims hold the position (x10)
+    with 2 mm of noise, the rest is noise; else every dim is noise independent of the positions."""
+    N = episodes * frames
+    episode_index = np.repeat(np.arange(episodes), frames)
+    pos = rng.uniform(-0.1, 0.1, (N, 3)) + [0, 0, 0.02]
+    tokens = rng.normal(size=(N, 2, 7, 4))
+    if informative:
+        tokens.reshape(N, -1)[:, :3] = pos * 10 + rng.normal(scale=0.002 * 10, size=(N, 3))
+    return tokens.astype(np.float32), pos, episode_index
+
+
+def test_episode_split_holds_out_whole_last_episodes():
+    ep = np.repeat(np.arange(10), 5)
+    train, test = probes.episode_split(ep, 0.15)
+    assert set(ep[test]) == {8, 9} and set(ep[train]) == set(range(8))  # round(1.5) -> 2 episodes
+    with pytest.raises(ValueError, match="at least 2 episodes"):
+        probes.episode_split(np.zeros(5, int), 0.15)
+
+
+def test_probes_recover_a_position_the_tokens_hold():
+    tokens, pos, ep = _store(np.random.default_rng(0))
+    out = probes.probe(tokens, {"obj_pos": pos}, ep, holdout=0.2, seed=0, mlp_epochs=40)
+    assert out["test_episodes"] == 4 and out["test_frames"] == 160
+    res = out["obj_pos"]
+    # the 3D noise of 2 mm per axis has a median norm of ~3.1 mm: ridge should be there, the mean far off
+    assert res["ridge"]["median_cm"] < 0.5 < 5 < res["mean"]["median_cm"]
+    assert res["mlp"]["median_cm"] < 2.0
+
+
+def test_probes_do_not_beat_the_mean_on_uninformative_tokens():
+    tokens, pos, ep = _store(np.random.default_rng(1), informative=False)
+    res = probes.probe(tokens, {"obj_pos": pos}, ep, holdout=0.2, seed=0, mlp_epochs=0)["obj_pos"]
+    assert "mlp" not in res
+    assert res["ridge"]["median_cm"] > 0.9 * res["mean"]["median_cm"]
+
+
+def test_mlp_probe_is_seeded():
+    tokens, pos, ep = _store(np.random.default_rng(2), episodes=6, frames=20)
+    a = probes.probe(tokens, {"obj_pos": pos}, ep, seed=3, mlp_epochs=3)
+    b = probes.probe(tokens, {"obj_pos": pos}, ep, seed=3, mlp_epochs=3)
+    assert a == b
