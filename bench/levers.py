@@ -41,8 +41,8 @@ def parse_lever(arg: str, config: dict) -> tuple[dict, dict]:
     return {**experiments.resolve(config, name), **overrides}, evaluation_cfg
 
 
-def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: int, out_root: Path) -> dict:
-    results = REPO / "results"
+def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: int, out_root: Path,
+              results: Path) -> dict:
     store = experiments.features_store(policy)
     enc_ckpt = results / "encoders" / "slots_ssl" / "model.pt" if policy["encoder"] == "slots_ssl" else None
     # one training per distinct policy: levers that differ only in evaluation settings share it
@@ -82,14 +82,16 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=20)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--configfile", nargs="*", default=[str(REPO / "config" / "config.yaml")])
-    ap.add_argument("--out", default=str(REPO / "results" / "levers"))
+    ap.add_argument("--results", default=str(REPO / "results"), help="the build whose stores the levers read")
+    ap.add_argument("--out", help="where trained levers and levers.csv go (default: RESULTS/levers)")
     args = ap.parse_args()
     config = cfgmod.load(*args.configfile)
-    out_root = Path(args.out)
+    out_root = Path(args.out or Path(args.results) / "levers")
     out_root.mkdir(parents=True, exist_ok=True)
     for arg in args.levers:
         policy, evaluation_cfg = parse_lever(arg, config)
-        row = run_lever(arg, policy, {**config, "evaluation": evaluation_cfg}, args.episodes, args.threads, out_root)
+        row = run_lever(arg, policy, {**config, "evaluation": evaluation_cfg}, args.episodes, args.threads, out_root,
+                        Path(args.results))
         csv = out_root / "levers.csv"
         table = pl.DataFrame([row])
         if csv.is_file():

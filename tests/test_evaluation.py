@@ -119,6 +119,11 @@ def test_best_checkpoint_prefers_sr_then_return(tmp_path):
                                                   ).write_parquet(f)
         files.append(f)
     assert evaluation_jobs.best_checkpoint(files)["epoch"] == 20
+    log = tmp_path / "train_log.parquet"
+    pl.DataFrame({"epoch": [10, 20, 30], "val_joint_err_rad": [0.3, 0.2, 0.1],
+                  "val_gripper_agree": [0.7, 0.8, 0.9]}).write_parquet(log)
+    sweep = {r["checkpoint"]: r for r in evaluation_jobs.best_checkpoint(files, log)["sweep"]}
+    assert sweep[20]["val_joint_err_rad"] == 0.2 and sweep[30]["val_gripper_agree"] == 0.9
 
 
 def test_report_writes_tables_from_run_files(tmp_path, default_config):
@@ -133,3 +138,23 @@ def test_report_writes_tables_from_run_files(tmp_path, default_config):
     assert t["SR mean"].to_list() == [0.5, 1.0]
     assert pl.read_csv(tmp_path / "t.csv")["Method"].to_list() == ["A", "B"]
     assert "| A |" in (tmp_path / "t.md").read_text()
+
+
+def test_temporal_ensemble_weights_older_chunks_more_and_votes_the_gripper():
+    from collections import deque
+
+    from ocpipe.evaluation import ensemble_action
+
+    old = np.zeros((4, 8), np.float32)
+    old[:, 7] = 1.0
+    new = np.ones((4, 8), np.float32)
+    new[:, 7] = -1.0
+    chunks = deque([(0, old), (2, new)])
+    # step 1: only the old chunk covers it
+    np.testing.assert_array_equal(ensemble_action(chunks, 1, 0.5), old[1])
+    # step 2: both; joints at exp(-0.5) / (1 + exp(-0.5)) of the way to the new chunk, the old gripper vote wins
+    a = ensemble_action(chunks, 2, 0.5)
+    np.testing.assert_allclose(a[:7], np.exp(-0.5) / (1 + np.exp(-0.5)), rtol=1e-6)
+    assert a[7] == 1.0
+    # step 5: the old chunk (4 steps from 0) no longer covers it
+    np.testing.assert_array_equal(ensemble_action(chunks, 5, 0.5), new[3])

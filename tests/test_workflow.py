@@ -283,3 +283,27 @@ def test_summary_names_probes_and_open_loop_error(tiny_run):
     text = "\n".join(summary_lines(tiny_run / "results"))
     assert "position probes, median cm on 1 held-out episodes: obj ridge" in text
     assert "open-loop joint error" in text and "Privileged state (control)" in text
+
+
+def test_an_episode_is_the_same_in_a_fresh_env_and_after_other_episodes(tiny_run):
+    """Evaluation jobs may split a run's seeds any way: an episode must not depend on what the env ran before."""
+    import polars as pl
+
+    from ocpipe import config as cfgmod
+    from ocpipe import evaluation
+
+    res = tiny_run / "results"
+    config = cfgmod.load(REPO / "config" / "config.yaml", tiny_run / "tiny.yaml")
+    args = (res / "runs" / "goal2d" / "checkpoints" / "epoch_0002.pt", config,
+            res / "frames" / "PickCube-v1_dual_64.zarr", res / "encoders" / "slots_ssl" / "model.pt")
+    ids = {"exp": "goal2d", "checkpoint": 2, "run": 0}
+    seeds = [10_003, 10_011]
+    loops = [evaluation.ClosedLoop(*args), evaluation.ClosedLoop(*args)]
+    try:
+        both, both_steps = evaluation.run(loops[0], seeds, ids, progress=False)
+        alone, alone_steps = evaluation.run(loops[1], seeds[1:], ids, progress=False)
+    finally:
+        for loop in loops:
+            loop.close()
+    assert both.row(1) == alone.row(0)
+    assert both_steps.filter(pl.col("seed") == seeds[1]).equals(alone_steps)

@@ -68,6 +68,7 @@ class ClosedLoop:
         ev = config["evaluation"]
         self.cap = ev["episode_cap"][self.task]
         self.execute = min(ev["execute_actions"], p["horizon"])
+        self.ensemble = ev.get("temporal_ensemble", 0.0)
         self.trivial_steps = ev["trivial_steps"]
 
     def close(self) -> None:
@@ -115,18 +116,21 @@ class ClosedLoop:
         steps: dict[str, list] = {k: [] for k in ("step", "action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos",
                                                    "reward")}
         queue: list[np.ndarray] = []
+        chunks: deque = deque(maxlen=-(-self.policy["horizon"] // self.execute))  # (query step, (H, 8) actions)
         success, total = False, 0.0
         for t in range(self.cap):
             tokens, proprio, goal, labels = self._observe(obs)
             window.append((tokens, proprio, goal))
             while len(window) < T:
                 window.appendleft(window[0])
-            if not queue:
+            if (not queue) if not self.ensemble else (t % self.execute == 0):
                 batch = [torch.stack([torch.as_tensor(w[i]) for w in window])[None].to(self.device) for i in range(3)]
                 pred = self.model(*batch)[0].cpu().numpy()
                 qpos = labels["qpos"][:7] if self.residual else None
-                queue = list(normalization.action_from_model(pred, self.stats, qpos=qpos)[: self.execute])
-            action = queue.pop(0)
+                chunk = normalization.action_from_model(pred, self.stats, qpos=qpos)
+                queue = list(chunk[: self.execute])
+                chunks.append((t, chunk))
+            action = ensemble_action(chunks, t, self.ensemble) if self.ensemble else queue.pop(0)
             obs, reward, _, _, info = self.env.step(torch.as_tensor(action[None]))
             reward = float(reward[0])
             total += reward
@@ -141,6 +145,18 @@ class ClosedLoop:
         row = {"seed": seed, "success": success, "steps": n, "trivial": success and n < self.trivial_steps,
                "return": total}
         return row, steps
+
+
+def ensemble_action(chunks, t: int, decay: float) -> np.ndarray:
+    """Temporal ensembling of action chunks: every earlier prediction that covers step ``t`` votes, the oldest
+    weighted most (exp(-decay * i), i = 0 for the oldest), so a new query bends the motion instead of jumping.
+    Joints are averaged; the gripper command is the sign of the weighted vote."""
+    covering = [chunk[t - t0] for t0, chunk in chunks if 0 <= t - t0 < len(chunk)]
+    w = np.exp(-decay * np.arange(len(covering)))[:, None]
+    mean = (w * np.stack(covering)).sum(0) / w.sum()
+    action = mean.astype(np.float32)
+    action[7] = 1.0 if mean[7] >= 0 else -1.0
+    return action
 
 
 def run(loop: ClosedLoop, seeds: list[int], ids: dict, progress: bool = True) -> tuple[pl.DataFrame, pl.DataFrame]:

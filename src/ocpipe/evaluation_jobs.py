@@ -36,13 +36,24 @@ def seeds_for(kind: str, evaluation_cfg: dict, seed: int, run: int = 0,
     raise ValueError(f"unknown evaluation kind {kind!r}")
 
 
-def best_checkpoint(sweep_files: list[str | Path]) -> dict:
-    """The checkpoint with the highest sweep SR; ties go to the higher mean return, then the later epoch."""
+OPEN_LOOP_COLUMNS = ("val_joint_err_rad", "val_first_joint_err_rad", "val_gripper_agree")
+
+
+def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None = None) -> dict:
+    """The checkpoint with the highest sweep SR; ties go to the higher mean return, then the later epoch.
+
+    With ``train_log``, each sweep row also carries that epoch's open-loop error on the held-out demos, so a
+    checkpoint's closed-loop SR and its open-loop error sit side by side."""
+    log = pl.read_parquet(train_log) if train_log else None
     rows = []
     for f in sweep_files:
         eps = pl.read_parquet(f)
-        rows.append({"checkpoint": int(eps["checkpoint"][0]), "sr": evaluation.success_rate(eps),
-                     "mean_return": float(eps["return"].mean()), "episodes": len(eps)})
+        row = {"checkpoint": int(eps["checkpoint"][0]), "sr": evaluation.success_rate(eps),
+               "mean_return": float(eps["return"].mean()), "episodes": len(eps)}
+        if log is not None:
+            at = log.filter(pl.col("epoch") == row["checkpoint"])
+            row.update({c: float(at[c][0]) for c in OPEN_LOOP_COLUMNS if c in at.columns and len(at)})
+        rows.append(row)
     rows.sort(key=lambda r: (r["sr"] if r["sr"] == r["sr"] else -1.0, r["mean_return"], r["checkpoint"]))
     return {"epoch": rows[-1]["checkpoint"], "sweep": rows}
 
@@ -75,7 +86,7 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
     return episodes
 
 
-def write_best(sweep_files, out_json) -> dict:
-    best = best_checkpoint(sweep_files)
+def write_best(sweep_files, out_json, train_log=None) -> dict:
+    best = best_checkpoint(sweep_files, train_log)
     write_json(out_json, best)
     return best

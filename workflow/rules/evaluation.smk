@@ -79,6 +79,7 @@ rule sweep:
 rule best:
     input:
         sweep=lambda w: sweep_outputs(w.exp),
+        train_log="results/runs/{exp}/train_log.parquet",
     output:
         json="results/runs/{exp}/best.json",
     log:
