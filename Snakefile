@@ -23,11 +23,13 @@ include: "workflow/rules/evaluation.smk"
 
 
 rule spatial_grounding:
-    """The main job: Tables 5.1 and 5.2 and figures 5.1-5.3 (Pure Visual / 2D-Spatial-Proj / Explicit-3D-GT)."""
+    """The main job: Tables 5.1 and 5.2 and figures 5.1-5.3 (Pure Visual / 2D-Spatial-Proj / Explicit-3D-GT and the
+    privileged-state control), with the diagnostics and position probes of the visual policies' features store."""
     input:
         "results/tables/table5_1.csv",
         "results/tables/table5_2.csv",
         expand("results/figures/fig5_{n}.png", n=(1, 2, 3)),
+        f"results/features/{_exp.features_store(_exp.resolve(config, 'goal3d'))}.diagnostics.json",
 
 
 rule encodings:
