@@ -1,4 +1,4 @@
-"""Closed-loop evaluation of a policy checkpoint (SPEC section 8).
+"""Closed-loop evaluation of a policy checkpoint (docs/study.md, Evaluation protocol).
 
 Each step renders the training cameras, encodes them with the same frozen encoder, and keeps a window of the
 last T steps (the first step repeated at the start, as in training). Every `execute_actions` steps the policy is

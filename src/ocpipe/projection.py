@@ -1,4 +1,5 @@
-"""Pinhole camera model: look-at poses, OpenCV intrinsics/extrinsics, and the 2D goal projection (SPEC section 4)."""
+"""Pinhole camera model: look-at poses, OpenCV intrinsics/extrinsics, and the 2D goal projection
+(docs/study.md, 2D goal projection)."""
 
 from __future__ import annotations
 
@@ -47,8 +48,8 @@ def project_points(points: np.ndarray, intrinsic: np.ndarray, extrinsic: np.ndar
 
 
 def goal2d(points: np.ndarray, intrinsics: np.ndarray, extrinsics: np.ndarray, width: int) -> np.ndarray:
-    """The normalized 2D goal of SPEC section 4: for each camera c, (u, v) clipped to the image and divided by W,
-    concatenated over cameras -> (..., 2 * C) in [0, 1].
+    """The normalized 2D goal (docs/study.md, 2D goal projection): for each camera c, (u, v) clipped to the image
+    and divided by W, concatenated over cameras -> (..., 2 * C) in [0, 1].
 
     points (N, 3); intrinsics (C, 3, 3) or (N, C, 3, 3); extrinsics (C, 3, 4) or (N, C, 3, 4)."""
     points = np.asarray(points, dtype=np.float64)

@@ -1,4 +1,4 @@
-"""ManiSkill environments with the study's cameras (SPEC section 3) and task-specific readouts."""
+"""ManiSkill environments with the study's cameras (docs/study.md, Cameras) and task-specific readouts."""
 
 from __future__ import annotations
 

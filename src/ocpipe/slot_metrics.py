@@ -1,4 +1,5 @@
-"""Slot diagnostics from the study (SPEC section 5) and decomposition quality against simulator segmentation."""
+"""Slot diagnostics from the study (docs/study.md, Encoders) and decomposition quality against simulator
+segmentation."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The study's tables, assembled from evaluation Parquet files (SPEC section 10)."""
+"""The study's tables, assembled from evaluation Parquet files (docs/study.md, Tables and figures)."""
 
 from __future__ import annotations
 

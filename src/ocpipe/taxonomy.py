@@ -1,4 +1,4 @@
-"""Failure taxonomy (SPEC section 9) on per-step evaluation logs; the first matching rule wins.
+"""Failure taxonomy (docs/study.md, Failure taxonomy) on per-step evaluation logs; the first matching rule wins.
 
   1 Success         the episode's success flag
   2 Idle            mean over action dims of the per-dim variance over time < idle_variance

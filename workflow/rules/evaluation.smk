@@ -1,6 +1,6 @@
-# Closed-loop evaluation (SPEC section 8): a sweep job per (experiment, checkpoint), the best checkpoint, stability
-# runs (one job each), training-seed runs, failure classification (SPEC section 9), and the study's tables and
-# figures (SPEC section 10).
+# Closed-loop evaluation (docs/study.md, Evaluation protocol): a sweep job per (experiment, checkpoint), the best
+# checkpoint, stability runs (one job each), training-seed runs, failure classification (docs/study.md, Failure
+# taxonomy), and the study's tables and figures (docs/study.md, Tables and figures).
 from types import SimpleNamespace
 
 from ocpipe import study

@@ -1,7 +1,7 @@
 """`slots_ssl`: the offline default encoder. Slot Attention (K slots, deterministic learned initial queries) over
 per-cell features of each camera's workspace crop, trained self-supervised on the rendered frames, then frozen.
 
-Why this shape, on a 2-core CPU budget (SPEC section 5 records a plain Slot Attention autoencoder failing):
+Why this shape, on a 2-core CPU budget (a plain Slot Attention autoencoder failed there: docs/study.md, Encoders):
 - Input is the workspace crop (encoders/crop.py) at a small grid, so the cube covers a few cells, not 2x2 px.
 - The decoder has no per-pixel network: every slot predicts one appearance (a colour plus a linear shading
   gradient), so a training step costs little more than the encoder. The loss is the reconstruction error

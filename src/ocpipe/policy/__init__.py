@@ -1,1 +1,1 @@
-"""The Autoregressive Multimodal Sequence Policy (SPEC section 7): model, data windows, losses and training."""
+"""The Autoregressive Multimodal Sequence Policy (docs/study.md, Policy): model, data windows, losses, training."""

@@ -1,4 +1,4 @@
-"""The Autoregressive Multimodal Sequence Policy (SPEC section 7).
+"""The Autoregressive Multimodal Sequence Policy (docs/study.md, Policy).
 
 Per timestep the sequence holds, in this order: the visual tokens of every camera used, one proprioception token
 (3-layer MLP), one goal token (2d: 3-layer MLP of the 4-vector; 3d: linear of xyz; absent for goal 'none') and

@@ -1,4 +1,5 @@
-"""Per-target loss weights from episode progress p in [0, 1] (SPEC section 7), shape (..., 8): 7 joints + gripper.
+"""Per-target loss weights from episode progress p in [0, 1], shape (..., 8): 7 joints + gripper
+(docs/study.md, Policy, Ablations).
 
   uniform        1 everywhere.
   time           1 + p (a linear ramp to 2 at the episode's end); uniform during the first warm-up epochs.
