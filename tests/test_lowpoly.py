@@ -84,9 +84,10 @@ def cache_home(tmp_path, monkeypatch):
 def test_lowpoly_env_has_the_same_physics_and_segmentation(default_config, cache_home):
     import sapien
 
-    low = copy.deepcopy(default_config)
+    low, plain = copy.deepcopy(default_config), copy.deepcopy(default_config)
     low["sim"]["robot_visual_keep"], low["sim"]["ground_cells"] = 0.1, 2
-    plain_env = sim.make_env("PickCube-v1", default_config, "dual", 64)
+    plain["sim"]["robot_visual_keep"], plain["sim"]["ground_cells"] = None, None  # as ManiSkill draws the scene
+    plain_env = sim.make_env("PickCube-v1", plain, "dual", 64)
     low_env = sim.make_env("PickCube-v1", low, "dual", 64, obs_mode="rgb+segmentation")
     try:
         u_plain, u_low = plain_env.unwrapped, low_env.unwrapped
@@ -125,3 +126,19 @@ def test_camera_less_env_stays_plain(default_config):
         assert type(env.unwrapped) is sim._env_class("PickCube-v1")
     finally:
         env.close()
+
+
+def test_plain_mesh_files_stay_in_their_format(tmp_path):
+    """The wrist-camera Panda (StackCube's hand camera) has an STL camera body coloured by its URDF <material>:
+    it is decimated into an STL again, so the loader colours it the same way."""
+    import trimesh
+    from mani_skill.agents.registration import REGISTERED_AGENTS
+
+    urdf = Path(REGISTERED_AGENTS["panda_wristcam"].agent_cls.urdf_path)
+    out = lowpoly.decimated_urdf(urdf, 0.1, tmp_path)
+    meshes = [m.get("filename") for m in lowpoly._visual_meshes(ET.parse(out).getroot())]
+    stl = [f for f in meshes if f.endswith(".stl")]
+    assert len(stl) == 1
+    before = trimesh.load(str(urdf.parent / "realsense2_description/meshes/d415.stl"))
+    after = trimesh.load(str(out.parent / stl[0]))
+    assert 0.05 < len(after.faces) / len(before.faces) < 0.15

@@ -281,7 +281,7 @@ def test_summary_names_probes_and_open_loop_error(tiny_run):
     from ocpipe.summary import summary_lines
 
     text = "\n".join(summary_lines(tiny_run / "results"))
-    assert "position probes, median cm on 1 held-out episodes: obj ridge" in text
+    assert "position probes, median cm on 1 held-out episodes: obj mean" in text
     assert "open-loop joint error" in text and "Privileged state (control)" in text
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import shutil
@@ -13,6 +14,10 @@ def tmp_sibling(path: str | Path) -> Path:
     path = Path(path)
     # keep the suffix last: some writers (ManiSkill, matplotlib) choose the format from it
     return path.with_name(f".tmp-{os.getpid()}-{path.name}")
+
+
+class DiskFull(OSError):
+    """The disk filled up while an artifact was written; the message names it (errno stays ENOSPC)."""
 
 
 @contextlib.contextmanager
@@ -26,6 +31,14 @@ def atomic_path(path: str | Path):
         yield tmp
         _remove(path)
         os.replace(tmp, path)
+    except DiskFull:
+        raise
+    except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT) or "No space left on device" in str(exc):
+            raise DiskFull(errno.ENOSPC, f"No space left on device while writing {path}; its partial temporary "
+                           "copy was removed and nothing was written there: free space (or move results/ to a "
+                           "bigger disk) and rerun") from exc
+        raise
     finally:
         _remove(tmp)
 

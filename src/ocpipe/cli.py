@@ -1,4 +1,5 @@
-"""Command-line helpers around the workflow: `ocpipe check-config`, `ocpipe check-store`, `ocpipe summary`."""
+"""Command-line helpers around the workflow: `ocpipe check-config`, `ocpipe check-store`, `ocpipe summary`,
+`ocpipe config-docs`."""
 
 from __future__ import annotations
 
@@ -18,7 +19,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("store")
     p = sub.add_parser("summary", help="print the headline figures of everything built under a results folder")
     p.add_argument("results", nargs="?", default="results")
+    p = sub.add_parser("config-docs", help="regenerate config/README.md from the config schema and config/config.yaml")
+    p.add_argument("--check", action="store_true", help="only check that config/README.md is up to date (exit 1 if not)")
     args = parser.parse_args(argv)
+
+    if args.cmd == "config-docs":
+        from . import config_docs
+
+        return config_docs.main(check=args.check)
 
     if args.cmd == "summary":
         from .summary import summary_lines

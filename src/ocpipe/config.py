@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import difflib
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +61,18 @@ def _allowed(error: jsonschema.ValidationError) -> str:
     return " ".join(parts)
 
 
+def _unknown_keys(error: jsonschema.ValidationError) -> list[str]:
+    """One line per key the schema does not know, with the nearest known key and the full list."""
+    known = sorted((error.schema or {}).get("properties", {}))
+    prefix = _key_path(error) + "." if error.absolute_path else ""
+    out = []
+    for key in sorted(set(error.instance) - set(known), key=str):
+        near = difflib.get_close_matches(str(key), known, n=1)
+        hint = f"; did you mean {near[0]!r}?" if near else ""
+        out.append(f"  {prefix}{key}: unknown key{hint} (allowed keys: {', '.join(repr(k) for k in known)})")
+    return out
+
+
 def validate(config: dict, schema_path: str | Path = SCHEMA_PATH) -> None:
     """Raise ConfigError naming every offending key, what it holds and what is allowed."""
     with Path(schema_path).open() as fh:
@@ -68,6 +81,9 @@ def validate(config: dict, schema_path: str | Path = SCHEMA_PATH) -> None:
     errors = sorted(validator.iter_errors(config), key=lambda e: list(map(str, e.absolute_path)))
     problems = []
     for err in errors:
+        if err.validator == "additionalProperties" and err.validator_value is False:
+            problems.extend(_unknown_keys(err))
+            continue
         # Report the most specific sub-error of a oneOf/anyOf failure rather than the umbrella message.
         leaf = min(err.context, key=lambda e: len(e.schema_path)) if err.context else err
         allowed = _allowed(leaf)

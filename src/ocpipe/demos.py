@@ -97,14 +97,87 @@ def generate_shard(task: str, config: dict, shard: int, out_h5: str | Path, prog
             "failed_plans": failures, "mean_length": float(np.mean(lengths)), "max_length": int(np.max(lengths))}
 
 
+def _regenerate(path: str | Path) -> str:
+    """What to do about a damaged demo set (path: its .h5 or its .json)."""
+    p = Path(path)
+    return (f"delete {p.with_suffix('.h5').name} and {p.with_suffix('.json').name} and rerun the workflow to "
+            "regenerate them (an imported demo set: copy it again from its source)")
+
+
 def episodes(json_path: str | Path) -> list[dict]:
     """The json's episodes sorted numerically by episode_id (h5 keys sort traj_0, traj_1, traj_10, ...)."""
-    meta = json.loads(Path(json_path).read_text())
+    try:
+        meta = json.loads(Path(json_path).read_text())
+    except json.JSONDecodeError as exc:
+        raise DemoError(f"{json_path}: not valid JSON ({exc}); the file is truncated or corrupt: "
+                        f"{_regenerate(json_path)}") from exc
+    if not isinstance(meta, dict) or not isinstance(meta.get("episodes"), list):
+        raise DemoError(f"{json_path}: no 'episodes' list, so not a ManiSkill demo json: {_regenerate(json_path)}")
     eps = sorted(meta["episodes"], key=lambda e: int(e["episode_id"]))
     for ep in eps:
         if "episode_seed" not in ep:
             raise DemoError(f"{json_path}: episode {ep['episode_id']} has no episode_seed")
     return eps
+
+
+def open_h5(path: str | Path) -> h5py.File:
+    """Open a demo .h5 for reading; a truncated or corrupt file is a DemoError that names it."""
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        raise DemoError(f"{path}: not a readable HDF5 file ({exc}); it is truncated or corrupt: "
+                        f"{_regenerate(path)}") from exc
+
+
+def check_pair(h5_path: str | Path) -> list[dict]:
+    """The episodes of the demo set ``<name>.h5`` + ``<name>.json`` after checking that the .h5 opens and holds
+    exactly one ``traj_<id>`` per episode the .json lists (a pair from different runs, or a copy cut short, would
+    otherwise lose or mix up episodes silently)."""
+    h5_path = Path(h5_path)
+    json_path = _json_path(h5_path)
+    for p in (h5_path, json_path):
+        if not p.is_file():
+            raise DemoError(f"{p}: file not found; a demo set is a .h5 and a .json of the same name: {_regenerate(p)}")
+    eps = episodes(json_path)
+    with open_h5(h5_path) as h5:
+        try:
+            keys = {k for k in h5.keys() if _TRAJ_KEY.match(k)}
+        except (OSError, KeyError, RuntimeError) as exc:
+            raise DemoError(f"{h5_path}: its list of trajectories cannot be read ({exc}); the file is corrupt: "
+                            f"{_regenerate(h5_path)}") from exc
+    listed = {f"traj_{ep['episode_id']}" for ep in eps}
+    if keys != listed:
+        def some(names):
+            return ", ".join(sorted(names, key=lambda k: int(k[5:]))[:5]) + (" ..." if len(names) > 5 else "")
+
+        parts = [f"the json lists {len(eps)} episodes, the h5 holds {len(keys)} trajectories"]
+        if listed - keys:
+            parts.append(f"missing from the h5: {some(listed - keys)}")
+        if keys - listed:
+            parts.append(f"not in the json: {some(keys - listed)}")
+        raise DemoError(f"{h5_path} does not match {json_path} ({'; '.join(parts)}): the two files come from "
+                        f"different runs or one was cut short: {_regenerate(h5_path)}")
+    return eps
+
+
+def _readable(h5: h5py.File, key: str) -> bool:
+    try:
+        h5[key].visititems(lambda _, obj: obj[()] if isinstance(obj, h5py.Dataset) else None)
+    except (OSError, KeyError, RuntimeError, ValueError):
+        return False
+    return True
+
+
+def first_unreadable(h5_path: str | Path) -> str | None:
+    """The first trajectory of a demo .h5 whose data cannot be read, or None (reads every dataset)."""
+    with open_h5(h5_path) as h5:
+        return next((key for key in h5 if not _readable(h5, key)), None)
+
+
+def unreadable_error(h5_path: str | Path, key: str, exc: Exception | None = None) -> DemoError:
+    why = f" ({exc})" if exc is not None else ""
+    return DemoError(f"{h5_path}: episode {key.removeprefix('traj_')} ({key}) cannot be read{why}; the file is "
+                     f"corrupt: {_regenerate(h5_path)}")
 
 
 def merge(shard_h5s: list[str | Path], out_h5: str | Path, shard_reports: list[dict] | None = None,
@@ -113,12 +186,20 @@ def merge(shard_h5s: list[str | Path], out_h5: str | Path, shard_reports: list[d
     from mani_skill.trajectory.merge_trajectory import merge_trajectories
 
     out_h5 = Path(out_h5)
-    seeds = [ep["episode_seed"] for p in shard_h5s for ep in episodes(_json_path(p))]
+    seeds = [ep["episode_seed"] for p in shard_h5s for ep in check_pair(p)]
     dup = sorted({s for s in seeds if seeds.count(s) > 1})
     if dup:
         raise DemoError(f"duplicate episode seeds across shards: {dup[:10]}")
     with atomic_path(_json_path(out_h5)) as tmp_json, atomic_path(out_h5) as tmp_h5:
-        merge_trajectories(str(tmp_h5), [str(p) for p in shard_h5s], recompute_id=True)  # writes tmp_json too
+        try:
+            merge_trajectories(str(tmp_h5), [str(p) for p in shard_h5s], recompute_id=True)  # writes tmp_json too
+        except (OSError, KeyError, RuntimeError) as exc:
+            # h5py's read errors do not say which shard: find the damaged trajectory (a full disk is not one)
+            for p in shard_h5s:
+                key = first_unreadable(p)
+                if key is not None:
+                    raise unreadable_error(p, key, exc) from exc
+            raise
         assert tmp_h5.with_suffix(".json") == tmp_json
     report = {"episodes": len(seeds), "seed_min": min(seeds), "seed_max": max(seeds)}
     if shard_reports:
@@ -156,12 +237,17 @@ def import_official(src_h5: str | Path, src_json: str | Path, out_h5: str | Path
     out_h5 = Path(out_h5)
     out_eps = []
     with atomic_path(_json_path(out_h5)) as tmp_json, atomic_path(out_h5) as tmp_h5:
-        with h5py.File(src_h5, "r") as src, h5py.File(tmp_h5, "w") as dst:
+        with open_h5(src_h5) as src, h5py.File(tmp_h5, "w") as dst:
             for new_id, ep in enumerate(tqdm(eps, desc=f"import {task}")):
                 key = f"traj_{ep['episode_id']}"
                 if key not in src:
                     raise DemoError(f"{src_h5}: episode {ep['episode_id']} listed in the json but {key} is missing")
-                src.copy(key, dst, f"traj_{new_id}")
+                try:
+                    src.copy(key, dst, f"traj_{new_id}")
+                except (OSError, KeyError, RuntimeError) as exc:
+                    if not _readable(src, key):
+                        raise unreadable_error(src_h5, key, exc) from exc
+                    raise
                 mode = ep.get("control_mode", meta.get("env_info", {}).get("env_kwargs", {}).get("control_mode"))
                 if mode != "pd_joint_pos":
                     _to_absolute_joint_actions(dst[f"traj_{new_id}"], key)

@@ -23,6 +23,7 @@ from .devices import to_device
 from .encoders import registry
 from .encoders.state import state_tokens
 from .features import sha256
+from .frames_store import open_store
 from .policy import normalization
 from .policy.training import load_policy
 from .slot_geometry import full_image_windows, slot_geometry
@@ -42,17 +43,46 @@ def sample_seeds(evaluation: dict, n: int, *stream: int) -> list[int]:
     return sorted(int(s) for s in np.random.default_rng(list(stream)).choice(pool, size=n, replace=False))
 
 
+def check_checkpoint(checkpoint, policy: dict, meta: dict, frames_store, encoder_checkpoint,
+                     expected: dict | None = None) -> None:
+    """Refuse a policy checkpoint that does not belong with this job's inputs, before a simulator is built:
+    ``expected`` (the resolved settings of the experiment being evaluated) names another task, camera set,
+    resolution or encoder; the checkpoint was trained on another encoder's features; the frames store (its
+    cameras and calibration) is of another task, camera set or resolution; or the encoder weights differ."""
+    if expected is not None:
+        for key in ("task", "encoder", "cams", "resolution"):
+            if policy.get(key) != expected.get(key):
+                raise ValueError(
+                    f"{checkpoint}: trained for {key} {policy.get(key)!r}, but experiment {expected.get('name')!r} "
+                    f"has {key} {expected.get(key)!r}: the checkpoint belongs to another experiment; retrain "
+                    f"(delete {Path(checkpoint).parent} and rerun the workflow)")
+    if meta.get("encoder") not in (None, policy["encoder"]):
+        raise ValueError(
+            f"{checkpoint}: its policy names encoder {policy['encoder']!r} but it was trained on {meta['encoder']!r} "
+            f"features ({meta.get('features_store')}): delete that features store and the run's checkpoints and "
+            "rerun the workflow to rebuild and retrain")
+    attrs = open_store(frames_store).attrs.asdict()
+    for key, attr in (("task", "task"), ("cams", "camera_set"), ("resolution", "resolution")):
+        if attr in attrs and policy.get(key) != attrs[attr]:
+            raise ValueError(
+                f"{checkpoint}: trained for {key} {policy.get(key)!r}, but {frames_store} is a frames store of "
+                f"{attr} {attrs[attr]!r}: give the frames store it was trained on ({meta.get('frames_store')})")
+    if encoder_checkpoint and meta.get("encoder_checkpoint_sha256") not in (None, sha256(encoder_checkpoint)):
+        raise ValueError(f"{encoder_checkpoint} is not the encoder checkpoint that {checkpoint} was trained on "
+                         "(sha256 differs): rebuild the features store and retrain")
+
+
 class ClosedLoop:
-    """One environment + the frozen encoder + one policy checkpoint."""
+    """One environment + the frozen encoder + one policy checkpoint.
+
+    ``expected``: the settings of the experiment the checkpoint is evaluated for; see check_checkpoint."""
 
     def __init__(self, checkpoint: str | Path, config: dict, frames_store: str | Path,
-                 encoder_checkpoint: str | Path | None, device: str = "cpu"):
+                 encoder_checkpoint: str | Path | None, device: str = "cpu", expected: dict | None = None):
         self.device = torch.device(device)
         self.model, self.stats, self.policy, self.meta = load_policy(checkpoint, self.device)
         p = self.policy
-        if encoder_checkpoint and self.meta.get("encoder_checkpoint_sha256") not in (None, sha256(encoder_checkpoint)):
-            raise ValueError(f"{encoder_checkpoint} is not the encoder checkpoint that {checkpoint} was trained on "
-                             "(sha256 differs): rebuild the features store and retrain")
+        check_checkpoint(checkpoint, p, self.meta, frames_store, encoder_checkpoint, expected)
         self.encoder = to_device(registry.build(p["encoder"], config["encoders"], frames_store, encoder_checkpoint),
                                  self.device)
         self.reads_labels = getattr(self.encoder, "reads_labels", False)

@@ -60,7 +60,9 @@ def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None 
 
 def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_ckpt, out_episodes, out_steps,
             seed: int, run: int = 0, best_json=None, epoch: int | None = None, threads: int = 1,
-            progress: bool = True) -> pl.DataFrame:
+            progress: bool = True, policy: dict | None = None) -> pl.DataFrame:
+    """``policy``: the experiment's resolved settings; a checkpoint trained with another task, camera set,
+    resolution or encoder is refused before the simulator starts."""
     if epoch is None:
         epoch = json.loads(Path(best_json).read_text())["epoch"]
     ckpt = Path(checkpoints_dir) / f"epoch_{epoch:04d}.pt"
@@ -72,7 +74,7 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
 
     torch.set_num_threads(threads)
     loop = evaluation.ClosedLoop(ckpt, config, frames, encoder_ckpt or None,
-                                 device=pick_device(config["evaluation"]["device"]))
+                                 device=pick_device(config["evaluation"]["device"]), expected=policy)
     try:
         episode_seeds = list(open_store(frames).attrs["episode_seeds"]) if kind == "train_seeds" else None
         seeds = seeds_for(kind, config["evaluation"], seed, run, episode_seeds)

@@ -50,8 +50,9 @@ def encode_store(encoder: FrozenEncoder, frames_path: str | Path, out_path: str 
     torch.set_num_threads(threads)
     dev = pick_device(device)
     encoder = to_device(encoder, dev)
-    frames = open_store(frames_path)
-    if getattr(encoder, "reads_labels", False):
+    reads_labels = getattr(encoder, "reads_labels", False)
+    frames = open_store(frames_path, need=("obj_pos",) if reads_labels else ("rgb",))
+    if reads_labels:
         return _write_label_tokens(encoder, frames, frames_path, out_path, chunk_frames)
     rgb = frames["rgb"]
     N = rgb.shape[0]
@@ -100,8 +101,7 @@ def _provenance(encoder, frames: zarr.Group, frames_path) -> dict:
         "checkpoint": str(encoder.checkpoint) if encoder.checkpoint else None,
         "checkpoint_sha256": sha256(encoder.checkpoint),
         "frames_store": str(frames_path),
-        "frames_store_attrs": {k: fa[k] for k in ("task", "camera_set", "cameras", "resolution", "episode_seeds",
-                                                   "episode_offsets") if k in fa},
+        "frames_store_attrs": {k: fa[k] for k in PROVENANCE_KEYS if k in fa},
     }
 
 
@@ -141,4 +141,30 @@ def open_features(path: str | Path) -> zarr.Group:
     path = Path(path)
     if not (path / "zarr.json").is_file():
         raise FileNotFoundError(f"no features store at {path}")
-    return zarr.open_group(str(path), mode="r", zarr_format=3)
+    root = zarr.open_group(str(path), mode="r", zarr_format=3)
+    if "tokens" not in root:
+        raise ValueError(f"{path}: features store has no 'tokens' array (damaged or cut short): delete it and rerun "
+                         "the workflow to rebuild it")
+    return root
+
+
+PROVENANCE_KEYS = ("task", "camera_set", "cameras", "resolution", "episode_seeds", "episode_offsets")
+
+
+def check_provenance(feats: zarr.Group, features_path, frames: zarr.Group, frames_path) -> None:
+    """Refuse a features store encoded from another frames store than ``frames`` (rows would pair the wrong
+    frames' tokens with these labels). Stores without recorded provenance pass."""
+    recorded = feats.attrs.get("frames_store_attrs")
+    if not recorded:
+        return
+    fa = frames.attrs.asdict()
+    differ = [k for k in PROVENANCE_KEYS if k in recorded and k in fa and recorded[k] != fa[k]]
+    if differ:
+        def short(v):
+            text = repr(v)
+            return text if len(text) <= 40 else text[:37] + "..."
+
+        what = "; ".join(f"{k}: {short(recorded[k])} there, {short(fa[k])} here" for k in differ)
+        raise ValueError(f"{features_path} was encoded from {feats.attrs.get('frames_store', 'another frames store')}, "
+                         f"not from {frames_path} ({what}): delete the features store and rerun the workflow to "
+                         "rebuild it from this frames store")

@@ -5,10 +5,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import h5py
 from tqdm import tqdm
 
 from .atomic import atomic_path
+from .demos import check_pair, open_h5
 from .frames_store import StoreWriter
 from .replay import Replayer, select_episodes
 
@@ -20,13 +20,14 @@ class ReplayFailure(RuntimeError):
 def render_shard(task: str, camera_set: str, resolution: int, demo_h5: str | Path, shard: int, n_shards: int,
                  config: dict, out_path: str | Path, progress: bool = True) -> dict:
     demo_h5 = Path(demo_h5)
+    check_pair(demo_h5)  # a damaged or mismatched demo set fails here, before a simulator is built
     eps = select_episodes(demo_h5.with_suffix(".json"), shard, n_shards)
     if not eps:
         raise ValueError(f"frames shard {shard}/{n_shards} of {demo_h5} has no episodes; lower frames.shards")
     replayer = Replayer(task, config, camera_set, resolution)
     failed, state_err, offsets = [], 0.0, [0]
     t0 = time.perf_counter()
-    with atomic_path(out_path) as tmp, h5py.File(demo_h5, "r") as h5:
+    with atomic_path(out_path) as tmp, open_h5(demo_h5) as h5:
         writer = StoreWriter(tmp, replayer.cameras, resolution, config["frames"]["chunk_frames"],
                              moving_cameras="hand" in replayer.cameras)
         bar = tqdm(eps, desc=f"{task} {camera_set} {resolution}px shard {shard}", unit="ep", disable=not progress)

@@ -87,16 +87,54 @@ class StoreWriter:
         self.root.attrs.update(attrs)
 
 
-def open_store(path: str | Path) -> zarr.Group:
+CAMERA_MATRICES = {"cam_intrinsic": (3, 3), "cam_extrinsic": (3, 4)}
+
+
+def open_store(path: str | Path, need: tuple[str, ...] = ()) -> zarr.Group:
+    """Open the frames store at ``path`` read-only. ``need``: arrays the caller reads; each must exist, hold one
+    row per frame (episode_offsets[-1]) and have its contract shape, else a ValueError names the store and array."""
     path = Path(path)
     if not (path / "zarr.json").is_file():
         raise FileNotFoundError(f"no Zarr store at {path}")
-    return zarr.open_group(str(path), mode="r", zarr_format=3)
+    root = zarr.open_group(str(path), mode="r", zarr_format=3)
+    problems = _array_problems(root, need) if need else []
+    if problems:
+        raise ValueError(f"{path}: frames store is damaged: {'; '.join(problems)}; delete it and rerun the workflow "
+                         "to rebuild it")
+    return root
+
+
+def _array_problems(root: zarr.Group, need: tuple[str, ...]) -> list[str]:
+    attrs = root.attrs.asdict()
+    if "episode_offsets" not in attrs:
+        return ["attr 'episode_offsets' missing"]
+    N = attrs["episode_offsets"][-1]
+    C = len(attrs["cameras"]) if "cameras" in attrs else None
+    R = attrs.get("resolution")
+    problems = []
+    for name in need:
+        if name not in root:
+            problems.append(f"array {name!r} missing")
+            continue
+        shape = root[name].shape
+        if name in CAMERA_MATRICES:
+            want = (C, *CAMERA_MATRICES[name])
+        elif name in PER_FRAME:
+            want = (N, *PER_FRAME[name][0](C, R)) if name not in ("goal2d_exact", "goal2d_approx") or C else None
+        else:
+            want = None
+        if want is None:
+            continue
+        if name not in CAMERA_MATRICES and shape[:1] != (N,):
+            problems.append(f"{name} has {shape[0] if shape else 0} frames, episode_offsets end at {N}")
+        elif len(shape) != len(want) or any(w is not None and s != w for s, w in zip(shape, want)):
+            problems.append(f"{name} has shape {shape}, expected {want}")
+    return problems
 
 
 def merge(shard_paths: list[str | Path], out_path: str | Path, chunk_frames: int) -> dict:
     """Concatenate shard stores (in order) into one store, atomically. Returns the merged attrs."""
-    shards = [open_store(p) for p in shard_paths]
+    shards = [open_store(p, need=(*PER_FRAME, *CAMERA_MATRICES)) for p in shard_paths]
     first = shards[0].attrs.asdict()
     cameras, R = first["cameras"], first["resolution"]
     for p, s in zip(shard_paths, shards):

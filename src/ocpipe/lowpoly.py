@@ -22,7 +22,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 # Bump when the output of decimate_visual_mesh changes, so stale caches are not reused.
-_VERSION = "2"
+_VERSION = "3"
 # Parts this small (e.g. the 16-triangle status lights on link6) are kept whole: they cost nothing to draw and
 # would collapse to nothing.
 _MIN_FACES = 64
@@ -33,10 +33,12 @@ def default_cache_root() -> Path:
 
 
 def decimate_visual_mesh(src: Path, dst: Path, keep: float) -> tuple[int, int]:
-    """Write a copy of the glTF/mesh file ``src`` at ``dst`` (.glb) with about ``keep`` of its triangles.
+    """Write a copy of the glTF/mesh file ``src`` at ``dst`` with about ``keep`` of its triangles.
 
     Each geometry (one per material in these files) is decimated on its own, keeping its PBR material and node
-    transform. Returns (triangles before, after)."""
+    transform. A ``dst`` that is not .glb (an STL, as the wrist camera's) gets one plain mesh in that format: such
+    files carry no material, the URDF's <material> colours them, and the loader must see the same kind of file.
+    Returns (triangles before, after)."""
     import fast_simplification
     import numpy as np
     import trimesh
@@ -64,14 +66,25 @@ def decimate_visual_mesh(src: Path, dst: Path, keep: float) -> tuple[int, int]:
             # Unweld again so per-vertex normals are the face normals: the same flat shading as the original.
             mesh = trimesh.Trimesh(v, f, process=False)
             mesh.unmerge_vertices()
-            mesh.visual = trimesh.visual.TextureVisuals(material=geom.visual.material)
+            if hasattr(geom.visual, "material"):
+                mesh.visual = trimesh.visual.TextureVisuals(material=geom.visual.material)
         for j, transform in enumerate(sorted(instances.get(gname, []), key=lambda t: t.tobytes())):
             out.add_geometry(mesh, node_name=f"{gname}#{j}", geom_name=gname, transform=transform)
             before += n
             after += len(mesh.faces)
     dst.parent.mkdir(parents=True, exist_ok=True)
-    dst.write_bytes(trimesh.exchange.gltf.export_glb(out, include_normals=True))
+    if dst.suffix.lower() == ".glb":
+        dst.write_bytes(trimesh.exchange.gltf.export_glb(out, include_normals=True))
+    else:
+        plain = trimesh.util.concatenate(out.dump())
+        dst.write_bytes(plain.export(file_type=dst.suffix.lower().lstrip(".")))
     return before, after
+
+
+def _out_suffix(source: str) -> str:
+    """glTF sources are rewritten as .glb (materials kept); any other mesh format keeps its own."""
+    suffix = Path(source).suffix.lower()
+    return ".glb" if suffix in (".glb", ".gltf") else suffix
 
 
 def _visual_meshes(root: ET.Element):
@@ -112,7 +125,7 @@ def decimated_urdf(urdf_path: str | os.PathLike, keep: float, cache_root: str | 
     tmp = Path(tempfile.mkdtemp(prefix=".build-", dir=out_dir.parent))
     try:
         # One decimated file per distinct source mesh (finger.glb is shared by both fingers).
-        renamed = {s: f"visual/{i:02d}_{Path(s).stem}.glb" for i, s in enumerate(sources)}
+        renamed = {s: f"visual/{i:02d}_{Path(s).stem}{_out_suffix(s)}" for i, s in enumerate(sources)}
         for s, d in renamed.items():
             decimate_visual_mesh(src_dir / s, tmp / d, keep)
         for m in meshes:

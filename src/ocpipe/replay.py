@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from . import projection, sim
-from .demos import episodes
+from .demos import episodes, unreadable_error
 
 
 @dataclass
@@ -52,6 +52,17 @@ def _flat_current(env, like: dict) -> np.ndarray:
     return walk(cur, like)
 
 
+def read_episode(h5: h5py.File, episode: dict) -> tuple[np.ndarray, dict]:
+    """(actions, recorded env states) of one episode; a damaged trajectory is a DemoError naming file and episode."""
+    key = f"traj_{episode['episode_id']}"
+    if key not in h5:
+        raise KeyError(f"episode {episode['episode_id']}: {key} missing from {h5.filename}")
+    try:
+        return h5[key]["actions"][()], _read_group(h5[key]["env_states"])
+    except (OSError, KeyError, RuntimeError, ValueError) as exc:
+        raise unreadable_error(h5.filename, key, exc) from exc
+
+
 class Replayer:
     """Owns one rendering environment (physx_cpu allows one per process) for a (task, camera set, resolution)."""
 
@@ -69,11 +80,7 @@ class Replayer:
 
     def replay(self, h5: h5py.File, episode: dict) -> EpisodeFrames:
         u = self.env.unwrapped
-        key = f"traj_{episode['episode_id']}"
-        if key not in h5:
-            raise KeyError(f"episode {episode['episode_id']}: {key} missing from {h5.filename}")
-        actions = h5[key]["actions"][()]
-        states = _read_group(h5[key]["env_states"])
+        actions, states = read_episode(h5, episode)
         reset_kwargs = dict(episode.get("reset_kwargs") or {})
         reset_kwargs["seed"] = episode["episode_seed"]
         self.env.reset(**reset_kwargs)

@@ -7,5 +7,5 @@ with runlog.to_file(snakemake.log[0]):
         p.kind, w.exp, config, snakemake.input.checkpoints, snakemake.input.frames, snakemake.input.encoder,
         snakemake.output.episodes, snakemake.output.steps, p.seed, run=int(w.get("run", 0)),
         best_json=snakemake.input.get("best"), epoch=int(w.epoch) if "epoch" in w.keys() else None,
-        threads=snakemake.threads)
+        threads=snakemake.threads, policy=p.policy)
     print(episodes)

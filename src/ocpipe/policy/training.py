@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from ..atomic import atomic_path
 from ..devices import pick_device
-from ..features import PolicyTokens, open_features
+from ..features import PolicyTokens, check_provenance, open_features
 from ..frames_store import open_store
 from . import normalization
 from .model import SequencePolicy, loss_terms
@@ -71,7 +71,10 @@ def token_stats(tokens, frames: np.ndarray, max_frames: int = 20000) -> tuple[np
 
 def load_data(policy: dict, features_path, frames_path):
     """-> (tokens array, Labels, normalization stats computed from the training frames, meta, (train, val) frames)."""
-    feats, frames = open_features(features_path), open_store(frames_path)
+    goal = {"none": (), "3d": ("goal_pos",)}.get(policy["goal"], (f"goal2d_{policy.get('goal_calibration')}",))
+    aux = ("obj_pos",) if policy.get("aux_object_weight", 0) > 0 else ()
+    feats, frames = open_features(features_path), open_store(frames_path, need=("qpos", "action", *goal, *aux))
+    check_provenance(feats, features_path, frames, frames_path)
     tokens = PolicyTokens(feats, policy.get("slot_geometry", False), str(features_path))
     if tokens.shape[0] != frames["qpos"].shape[0]:
         raise ValueError(f"{features_path} has {tokens.shape[0]} frames but {frames_path} has {frames['qpos'].shape[0]}")
