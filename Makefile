@@ -4,7 +4,7 @@ SNAKEMAKE := .venv/bin/snakemake
 MAIN_TARGET ?= spatial_grounding
 CORES ?= 2
 
-.PHONY: setup main test dry-run clean
+.PHONY: setup main test lint dry-run clean
 
 setup:
 	bash bin/setup.sh
@@ -13,8 +13,12 @@ main: setup
 	$(SNAKEMAKE) --cores $(CORES) $(MAIN_TARGET)
 	.venv/bin/ocpipe summary results
 
-test: setup
+test: setup lint
 	.venv/bin/python -m pytest
+
+lint:
+	.venv/bin/ruff check .
+	.venv/bin/snakefmt --check Snakefile workflow/rules
 
 dry-run: setup
 	$(SNAKEMAKE) -n --cores $(CORES)

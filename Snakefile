@@ -5,7 +5,9 @@ from pathlib import Path
 
 from ocpipe.config import ConfigError, validate
 
+
 configfile: Path(workflow.basedir) / "config" / "config.yaml"
+
 
 try:
     validate(config)

@@ -60,12 +60,16 @@ def _loader_worker(kind, policy, features, frames, max_batches, queue):
         if max_batches and b + 1 >= max_batches:
             break
     seconds = time.perf_counter() - t0
-    queue.put({"samples": n, "seconds": seconds, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024})
+    queue.put(
+        {"samples": n, "seconds": seconds, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    )
 
 
 def measure_loader(kind, policy, features, frames, max_batches):
     queue = mp.get_context("spawn").Queue()
-    proc = mp.get_context("spawn").Process(target=_loader_worker, args=(kind, policy, features, frames, max_batches, queue))
+    proc = mp.get_context("spawn").Process(
+        target=_loader_worker, args=(kind, policy, features, frames, max_batches, queue)
+    )
     proc.start()
     out = queue.get()
     proc.join()
@@ -78,15 +82,20 @@ def seconds_per_epoch(policy, features, frames, max_batches, threads):
 
     torch.set_num_threads(threads)
     tokens, labels, _, meta = load_data(policy, features, frames)
-    loader = ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], policy["batch_size"],
-                               policy["cameras"], seed=0)
+    loader = ChunkWindowLoader(
+        tokens, labels, policy["window"], policy["horizon"], policy["batch_size"], policy["cameras"], seed=0
+    )
     torch.manual_seed(0)
     model = SequencePolicy(policy, meta["K"], meta["D"])
     opt = torch.optim.AdamW(model.parameters(), lr=policy["lr"])
     n, t0 = 0, time.perf_counter()
-    for b, batch in enumerate(loader.epoch(0)):
-        loss = loss_terms(model(batch["tokens"], batch["proprio"], batch["goal"]), batch["action"],
-                          loss_weights("uniform", batch["progress"]), False)["loss"]
+    for _, batch in enumerate(loader.epoch(0)):
+        loss = loss_terms(
+            model(batch["tokens"], batch["proprio"], batch["goal"]),
+            batch["action"],
+            loss_weights("uniform", batch["progress"]),
+            False,
+        )["loss"]
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -118,9 +127,13 @@ def main():
     ap.add_argument("--random-batches", type=int, default=20, help="batches timed for the random-access loader")
     ap.add_argument("--epoch-batches", type=int, default=60, help="batches timed per model (epoch time extrapolated)")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--experiments", nargs="*", default=[],
-                    help="also time an epoch of these config experiments (e.g. window20 window40), side by side "
-                         "with goal2d; experiments on other tasks or encoders need their own features store")
+    ap.add_argument(
+        "--experiments",
+        nargs="*",
+        default=[],
+        help="also time an epoch of these config experiments (e.g. window20 window40), side by side "
+        "with goal2d; experiments on other tasks or encoders need their own features store",
+    )
     ap.add_argument("--skip-loaders", action="store_true", help="only time epochs")
     args = ap.parse_args()
     config = cfgmod.load(args.config)

@@ -59,7 +59,7 @@ def main(argv=None) -> None:
     base_cfg = cfgmod.load(args.config)
     variants = [parse_variant(v) for v in args.variants]
     envs = []
-    for name, keep, cells in variants:
+    for _name, keep, cells in variants:
         cfg = copy.deepcopy(base_cfg)
         cfg["sim"]["robot_visual_keep"], cfg["sim"]["ground_cells"] = keep, cells
         env = sim.make_env(args.task, cfg, args.camera_set, args.resolution, obs_mode=args.obs_mode)

@@ -67,11 +67,20 @@ def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: in
     finally:
         loop.close()
     last = log.row(-1, named=True)
-    row = {"lever": label, "dir": out_dir.name, "epochs": policy["epochs"], "train_s": round(train_s, 1),
-           "val_joint_err_rad": last.get("val_joint_err_rad"), "val_first_joint_err_rad": last.get("val_first_joint_err_rad"),
-           "val_gripper_agree": last.get("val_gripper_agree"), "episodes": len(eps),
-           "successes": int(eps.filter(~pl.col("trivial"))["success"].sum()), "sr": evaluation.success_rate(eps),
-           "mean_steps": float(eps["steps"].mean()), "eval_s": round(time.perf_counter() - t0, 1)}
+    row = {
+        "lever": label,
+        "dir": out_dir.name,
+        "epochs": policy["epochs"],
+        "train_s": round(train_s, 1),
+        "val_joint_err_rad": last.get("val_joint_err_rad"),
+        "val_first_joint_err_rad": last.get("val_first_joint_err_rad"),
+        "val_gripper_agree": last.get("val_gripper_agree"),
+        "episodes": len(eps),
+        "successes": int(eps.filter(~pl.col("trivial"))["success"].sum()),
+        "sr": evaluation.success_rate(eps),
+        "mean_steps": float(eps["steps"].mean()),
+        "eval_s": round(time.perf_counter() - t0, 1),
+    }
     print(json.dumps(row), flush=True)
     return row
 
@@ -90,8 +99,15 @@ def main() -> None:
     out_root.mkdir(parents=True, exist_ok=True)
     for arg in args.levers:
         policy, evaluation_cfg = parse_lever(arg, config)
-        row = run_lever(arg, policy, {**config, "evaluation": evaluation_cfg}, args.episodes, args.threads, out_root,
-                        Path(args.results))
+        row = run_lever(
+            arg,
+            policy,
+            {**config, "evaluation": evaluation_cfg},
+            args.episodes,
+            args.threads,
+            out_root,
+            Path(args.results),
+        )
         csv = out_root / "levers.csv"
         table = pl.DataFrame([row])
         if csv.is_file():

@@ -21,9 +21,15 @@ def write_stores(root: Path, lengths=(30, 25, 40), C=2, K=7, D=16, chunk=32, see
     qpos = np.concatenate([rng.normal(0, 0.5, (N, 7)), rng.uniform(0.018, 0.04, (N, 1)).repeat(2, 1)], 1)
     action = np.concatenate([rng.normal(0, 0.5, (N, 7)), rng.choice([-1.0, 1.0], (N, 1))], 1)
     quat = rng.normal(size=(N, 4))
-    for name, arr in {"qpos": qpos, "action": action, "goal_pos": rng.uniform(-0.1, 0.3, (N, 3)),
-                      "obj_pos": rng.uniform(-0.1, 0.1, (N, 3)), "obj_quat": quat / np.linalg.norm(quat, axis=1)[:, None],
-                      "goal2d_exact": rng.uniform(0, 1, (N, 4)), "goal2d_approx": rng.uniform(0, 1, (N, 4))}.items():
+    for name, arr in {
+        "qpos": qpos,
+        "action": action,
+        "goal_pos": rng.uniform(-0.1, 0.3, (N, 3)),
+        "obj_pos": rng.uniform(-0.1, 0.1, (N, 3)),
+        "obj_quat": quat / np.linalg.norm(quat, axis=1)[:, None],
+        "goal2d_exact": rng.uniform(0, 1, (N, 4)),
+        "goal2d_approx": rng.uniform(0, 1, (N, 4)),
+    }.items():
         _put(frames, name, arr.astype(np.float32))
     frames.attrs.update({"episode_offsets": offsets, "cameras": ["base", "side"][:C], "task": "PickCube-v1"})
     feats = zarr.open_group(str(root / "features.zarr"), mode="w", zarr_format=3)
@@ -34,10 +40,40 @@ def write_stores(root: Path, lengths=(30, 25, 40), C=2, K=7, D=16, chunk=32, see
 
 
 def policy_settings(**overrides) -> dict:
-    base = dict(task="PickCube-v1", cams="dual", resolution=64, encoder="slots_ssl", cameras=[0, 1], goal="2d",
-                goal_calibration="exact", proprio="joints7", window=3, horizon=4, width=32, layers=2, heads=4,
-                dropout=0.1, fusion="concat", visual_head="tokens", action_head="linear", gripper="regression",
-                loss_weighting="uniform", time_weight_warmup_epochs=0, epochs=4, save_every=2, batch_size=16,
-                lr=1e-3, weight_decay=0.01, grad_clip=1.0, device="cpu", token_norm="none", slot_geometry=False,
-                aux_object_weight=0.0, proprio_noise=0.0, joint_targets="absolute", val_episodes=0, name="test")
+    base = dict(
+        task="PickCube-v1",
+        cams="dual",
+        resolution=64,
+        encoder="slots_ssl",
+        cameras=[0, 1],
+        goal="2d",
+        goal_calibration="exact",
+        proprio="joints7",
+        window=3,
+        horizon=4,
+        width=32,
+        layers=2,
+        heads=4,
+        dropout=0.1,
+        fusion="concat",
+        visual_head="tokens",
+        action_head="linear",
+        gripper="regression",
+        loss_weighting="uniform",
+        time_weight_warmup_epochs=0,
+        epochs=4,
+        save_every=2,
+        batch_size=16,
+        lr=1e-3,
+        weight_decay=0.01,
+        grad_clip=1.0,
+        device="cpu",
+        token_norm="none",
+        slot_geometry=False,
+        aux_object_weight=0.0,
+        proprio_noise=0.0,
+        joint_targets="absolute",
+        val_episodes=0,
+        name="test",
+    )
     return {**base, **overrides}

@@ -10,13 +10,13 @@ import h5py
 import numpy as np
 import pytest
 import zarr
+from fake_demos import write
+from policy_stores import policy_settings, write_stores
+from test_frames_store import write_shard
 
 from ocpipe import config as C
 from ocpipe import demos, evaluation, features, frames, frames_store, replay
 from ocpipe.policy.training import load_data
-from fake_demos import write
-from policy_stores import policy_settings, write_stores
-from test_frames_store import write_shard
 
 
 def no_leftovers(folder):

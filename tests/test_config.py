@@ -2,9 +2,9 @@ import copy
 
 import pytest
 import yaml
+from conftest import REPO
 
 from ocpipe import config as C
-from conftest import REPO
 
 
 def test_default_and_thesis_profiles_validate():

@@ -1,9 +1,9 @@
 """config/README.md is generated from the schema's descriptions and config/config.yaml, and must stay in sync."""
 
 import yaml
+from conftest import REPO
 
 from ocpipe import cli, config_docs
-from conftest import REPO
 
 SCHEMA = REPO / "workflow" / "schemas" / "config.schema.yaml"
 

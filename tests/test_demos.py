@@ -3,9 +3,9 @@ import json
 import h5py
 import numpy as np
 import pytest
+from fake_demos import write
 
 from ocpipe import demos, replay
-from fake_demos import write
 
 LEX_ORDER = sorted(range(12), key=lambda i: f"traj_{i}")  # 0, 1, 10, 11, 2, ...
 

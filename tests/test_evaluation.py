@@ -13,24 +13,38 @@ def steps(n=20, grasped=None, tcp_goal=0.5, action_scale=1.0, lift=0.0, obj_goal
     rng = np.random.default_rng(seed)
     grasped = [False] * n if grasped is None else grasped
     obj = [[obj_goal, 0.0, 0.02 + (lift if g else 0.0)] for g in grasped]
-    return pl.DataFrame({"step": list(range(n)), "action": (rng.normal(0, action_scale, (n, 8))).tolist(),
-                         "is_grasped": grasped, "tcp_pos": [[tcp_goal, 0.0, 0.0]] * n, "goal_pos": [[0.0, 0.0, 0.0]] * n,
-                         "obj_pos": obj})
+    return pl.DataFrame(
+        {
+            "step": list(range(n)),
+            "action": (rng.normal(0, action_scale, (n, 8))).tolist(),
+            "is_grasped": grasped,
+            "tcp_pos": [[tcp_goal, 0.0, 0.0]] * n,
+            "goal_pos": [[0.0, 0.0, 0.0]] * n,
+            "obj_pos": obj,
+        }
+    )
 
 
-@pytest.mark.parametrize("log,success,task,expected", [
-    (steps(), True, "PickCube-v1", "Success"),
-    (steps(action_scale=0.01), False, "PickCube-v1", "Idle"),
-    (steps(), False, "PickCube-v1", "No Grasp"),
-    (steps(grasped=[False] * 5 + [True] * 10 + [False] * 5), False, "PickCube-v1", "Drop"),
-    (steps(grasped=[False] * 5 + [True] * 15, tcp_goal=0.05), False, "PickCube-v1", "Near Miss"),
-    (steps(grasped=[False] * 5 + [True] * 15, tcp_goal=0.5), False, "PickCube-v1", "Unknown"),
-    (steps(grasped=[False] * 5 + [True] * 15, lift=0.05, obj_goal=0.3), False, "StackCube-v1", "Grasp No Stack"),
-    (steps(grasped=[False] * 5 + [True] * 15, lift=0.05, obj_goal=0.05, tcp_goal=0.05), False, "StackCube-v1",
-     "Near Miss"),
-    # Grasp No Stack is StackCube's own class: on PickCube the same log is a Near Miss or Unknown
-    (steps(grasped=[False] * 5 + [True] * 15, lift=0.05, obj_goal=0.3), False, "PickCube-v1", "Unknown"),
-])
+@pytest.mark.parametrize(
+    "log,success,task,expected",
+    [
+        (steps(), True, "PickCube-v1", "Success"),
+        (steps(action_scale=0.01), False, "PickCube-v1", "Idle"),
+        (steps(), False, "PickCube-v1", "No Grasp"),
+        (steps(grasped=[False] * 5 + [True] * 10 + [False] * 5), False, "PickCube-v1", "Drop"),
+        (steps(grasped=[False] * 5 + [True] * 15, tcp_goal=0.05), False, "PickCube-v1", "Near Miss"),
+        (steps(grasped=[False] * 5 + [True] * 15, tcp_goal=0.5), False, "PickCube-v1", "Unknown"),
+        (steps(grasped=[False] * 5 + [True] * 15, lift=0.05, obj_goal=0.3), False, "StackCube-v1", "Grasp No Stack"),
+        (
+            steps(grasped=[False] * 5 + [True] * 15, lift=0.05, obj_goal=0.05, tcp_goal=0.05),
+            False,
+            "StackCube-v1",
+            "Near Miss",
+        ),
+        # Grasp No Stack is StackCube's own class: on PickCube the same log is a Near Miss or Unknown
+        (steps(grasped=[False] * 5 + [True] * 15, lift=0.05, obj_goal=0.3), False, "PickCube-v1", "Unknown"),
+    ],
+)
 def test_every_taxonomy_branch(log, success, task, expected):
     assert taxonomy.classify(log, success, task, RULES) == expected
 
@@ -44,8 +58,13 @@ def test_first_matching_rule_wins():
 
 def test_stackcube_funnel_counts_stages_in_order():
     g = [False] * 5 + [True] * 15
-    logs = {1: steps(), 2: steps(grasped=g), 3: steps(grasped=g, lift=0.05),
-            4: steps(grasped=g, lift=0.05, obj_goal=0.05), 5: steps(grasped=g, lift=0.05, obj_goal=0.05)}
+    logs = {
+        1: steps(),
+        2: steps(grasped=g),
+        3: steps(grasped=g, lift=0.05),
+        4: steps(grasped=g, lift=0.05, obj_goal=0.05),
+        5: steps(grasped=g, lift=0.05, obj_goal=0.05),
+    }
     eps = pl.DataFrame({"seed": list(logs), "success": [False, False, False, False, True], "trivial": [False] * 5})
     all_steps = pl.concat([log.with_columns(pl.lit(s).alias("seed")) for s, log in logs.items()])
     classes = taxonomy.classify_run(eps, all_steps, "StackCube-v1", RULES)
@@ -53,8 +72,13 @@ def test_stackcube_funnel_counts_stages_in_order():
     assert classes["class"].to_list() == ["No Grasp", "Unknown", "Grasp No Stack", "Unknown", "Success"]
 
 
-EVAL = {"seed_pool_start": 10000, "seed_pool_size": 1000, "sweep_episodes": 20, "stability_episodes": 30,
-        "failure_episodes": 200}
+EVAL = {
+    "seed_pool_start": 10000,
+    "seed_pool_size": 1000,
+    "sweep_episodes": 20,
+    "stability_episodes": 30,
+    "failure_episodes": 200,
+}
 
 
 def test_held_out_seeds_are_deterministic_distinct_and_inside_the_pool():
@@ -82,9 +106,18 @@ def test_tables_name_defined_experiments(default_config):
 
 def episodes(run, successes, steps_, trivial=None):
     n = len(successes)
-    return pl.DataFrame({"exp": ["e"] * n, "checkpoint": [10] * n, "run": [run] * n, "seed": list(range(n)),
-                         "success": successes, "steps": steps_, "trivial": trivial or [False] * n,
-                         "return": [1.0] * n})
+    return pl.DataFrame(
+        {
+            "exp": ["e"] * n,
+            "checkpoint": [10] * n,
+            "run": [run] * n,
+            "seed": list(range(n)),
+            "success": successes,
+            "steps": steps_,
+            "trivial": trivial or [False] * n,
+            "return": [1.0] * n,
+        }
+    )
 
 
 def test_trivial_successes_count_in_neither_numerator_nor_total():
@@ -93,8 +126,13 @@ def test_trivial_successes_count_in_neither_numerator_nor_total():
 
 
 def test_table5_1_from_known_rows():
-    runs = pl.concat([episodes(0, [True, False], [40, 100]), episodes(1, [True, True], [40, 60]),
-                      episodes(2, [False, False, True], [100, 100, 4], trivial=[False, False, True])])
+    runs = pl.concat(
+        [
+            episodes(0, [True, False], [40, 100]),
+            episodes(1, [True, True], [40, 60]),
+            episodes(2, [False, False, True], [100, 100, 4], trivial=[False, False, True]),
+        ]
+    )
     t = tables.build("table5_1", [tables.Row("2D", {}, {"stability": runs})])
     row = t.row(0, named=True)
     assert row["SR mean"] == pytest.approx(0.5)  # runs: 0.5, 1.0, 0.0
@@ -104,8 +142,9 @@ def test_table5_1_from_known_rows():
 
 
 def test_table5_2_counts_and_percentages(tmp_path):
-    classes = pl.DataFrame({"class": ["Success", "Drop", "Drop", "No Grasp", "Success"],
-                            "trivial": [False, False, False, False, True]})
+    classes = pl.DataFrame(
+        {"class": ["Success", "Drop", "Drop", "No Grasp", "Success"], "trivial": [False, False, False, False, True]}
+    )
     t = tables.table5_2({"Pure": classes}).row(0, named=True)
     assert (t["Success"], t["Drop"], t["No Grasp"], t["Near Miss"], t["Total"]) == (1, 2, 1, 0, 4)
     assert t["Drop %"] == pytest.approx(50.0)
@@ -115,13 +154,15 @@ def test_best_checkpoint_prefers_sr_then_return(tmp_path):
     files = []
     for epoch, succ, ret in ((10, [True, False], 3.0), (20, [True, False], 5.0), (30, [False, False], 9.0)):
         f = tmp_path / f"epoch_{epoch}.episodes.parquet"
-        episodes(0, succ, [50, 100]).with_columns(pl.lit(epoch).alias("checkpoint"), pl.lit(ret).alias("return")
-                                                  ).write_parquet(f)
+        episodes(0, succ, [50, 100]).with_columns(
+            pl.lit(epoch).alias("checkpoint"), pl.lit(ret).alias("return")
+        ).write_parquet(f)
         files.append(f)
     assert evaluation_jobs.best_checkpoint(files)["epoch"] == 20
     log = tmp_path / "train_log.parquet"
-    pl.DataFrame({"epoch": [10, 20, 30], "val_joint_err_rad": [0.3, 0.2, 0.1],
-                  "val_gripper_agree": [0.7, 0.8, 0.9]}).write_parquet(log)
+    pl.DataFrame(
+        {"epoch": [10, 20, 30], "val_joint_err_rad": [0.3, 0.2, 0.1], "val_gripper_agree": [0.7, 0.8, 0.9]}
+    ).write_parquet(log)
     sweep = {r["checkpoint"]: r for r in evaluation_jobs.best_checkpoint(files, log)["sweep"]}
     assert sweep[20]["val_joint_err_rad"] == 0.2 and sweep[30]["val_gripper_agree"] == 0.9
 
@@ -132,8 +173,12 @@ def test_report_writes_tables_from_run_files(tmp_path, default_config):
         (runs / exp / "stability").mkdir(parents=True)
         for r in range(2):
             episodes(r, succ, [50, 80]).write_parquet(runs / exp / "stability" / f"run_{r}.episodes.parquet")
-    config = {**default_config, "experiments": {"a": {}, "b": {}}, "tables": {"table5_1": {"A": "a", "B": "b"}},
-              "evaluation": {**default_config["evaluation"], "stability_runs": 2}}
+    config = {
+        **default_config,
+        "experiments": {"a": {}, "b": {}},
+        "tables": {"table5_1": {"A": "a", "B": "b"}},
+        "evaluation": {**default_config["evaluation"], "stability_runs": 2},
+    }
     t = report.write_table(config, "table5_1", tmp_path / "t.csv", tmp_path / "t.md", runs_dir=runs)
     assert t["SR mean"].to_list() == [0.5, 1.0]
     assert pl.read_csv(tmp_path / "t.csv")["Method"].to_list() == ["A", "B"]

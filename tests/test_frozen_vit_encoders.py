@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 import torch
+from test_frames_store import write_shard
 
 from ocpipe import features
 from ocpipe.encoders import checkpoints as CK
 from ocpipe.encoders import dinosaur, registry
 from ocpipe.encoders.slot_attention import SlotAttention
 from ocpipe.encoders.vit import ViT
-from test_frames_store import write_shard
 
 
 @pytest.fixture(scope="module")

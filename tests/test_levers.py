@@ -54,8 +54,13 @@ def test_residual_targets_round_trip_to_the_expert_actions():
     act = action_frames(frames, labels, 3)
     stats = normalization.residual_stats(action, qpos, frames, act)
     assert stats["action_mean"].shape == (3, 8)
-    labels = Labels.from_offsets(offsets, qpos[:, :7], np.zeros((20, 0), np.float32), action,
-                                 residual=(normalization.residual_base(qpos), stats["action_mean"], stats["action_std"]))
+    labels = Labels.from_offsets(
+        offsets,
+        qpos[:, :7],
+        np.zeros((20, 0), np.float32),
+        action,
+        residual=(normalization.residual_base(qpos), stats["action_mean"], stats["action_std"]),
+    )
     model_space = labels.targets(frames, act)
     np.testing.assert_allclose(model_space[..., :7].reshape(-1, 7).std(0), 1.0, rtol=1e-4)
     back = normalization.action_from_model(model_space, stats, qpos=qpos[:, :7])
@@ -113,7 +118,7 @@ def test_openloop_error_is_zero_for_a_policy_that_returns_the_expert_chunk(tmp_p
         class Oracle(torch.nn.Module):
             current = None
 
-            def forward(self, tokens, proprio, goal):
+            def forward(self, tokens, proprio, goal, truth=truth):
                 return torch.stack([truth[f] for f in Oracle.current])
 
         def patched_epoch(epoch, _orig=loader.epoch):
@@ -130,7 +135,13 @@ def test_proprio_noise_changes_training_and_stays_seeded(tmp_path):
     features, frames = write_stores(tmp_path)
     losses = {}
     for name, noise in (("a", 0.0), ("b", 0.5), ("c", 0.5)):
-        table = train(policy_settings(proprio_noise=noise, epochs=1, save_every=1), 0, features, frames,
-                      tmp_path / name, progress=False)
+        table = train(
+            policy_settings(proprio_noise=noise, epochs=1, save_every=1),
+            0,
+            features,
+            frames,
+            tmp_path / name,
+            progress=False,
+        )
         losses[name] = table["loss"].to_list()
     assert losses["b"] == losses["c"] and losses["a"] != losses["b"]

@@ -4,14 +4,13 @@ import numpy as np
 import polars as pl
 import pytest
 import torch
+from policy_stores import policy_settings, write_stores
 
 from ocpipe.policy import normalization
 from ocpipe.policy.model import SequencePolicy, loss_terms
 from ocpipe.policy.training import load_policy, train
 from ocpipe.policy.weighting import loss_weights
 from ocpipe.policy.windows import ChunkWindowLoader, Labels, action_frames, progress, window_frames
-
-from policy_stores import policy_settings, write_stores
 
 
 def inputs(policy, B=3, K=7, D=16, seed=0):

@@ -9,8 +9,9 @@ from ocpipe import sim
 
 @pytest.fixture(scope="module")
 def pick_env(request):
-    from ocpipe import config as C
     from conftest import REPO
+
+    from ocpipe import config as C
 
     cfg = C.load(REPO / "config" / "config.yaml")
     env = sim.make_env("PickCube-v1", cfg, "dual", 96)

@@ -62,7 +62,9 @@ def test_mask_diagnostics_on_disjoint_and_uniform_masks():
     uniform = np.full((1, 4, 8, 8), 0.25)
     u = SM.mask_diagnostics(uniform)
     # A_i.A_j / min(sum A_i, sum A_j) = 64/16 / 16 for four equal masks
-    assert u["slot_overlap_mean"] == pytest.approx(0.25) and u["slot_entropy_per_pixel_nats"] == pytest.approx(np.log(4))
+    assert u["slot_overlap_mean"] == pytest.approx(0.25) and u["slot_entropy_per_pixel_nats"] == pytest.approx(
+        np.log(4)
+    )
     assert u["spatial_coherence_mean_abs_diff"] == 0
 
 

@@ -41,9 +41,13 @@ def test_dino_layout_round_trip_and_wrapped_variants(tmp_path):
     x = torch.randn(1, 3, 64, 64)
     torch.testing.assert_close(loaded.forward_features(x), vit.forward_features(x))
     # DINO's training checkpoints: teacher.backbone.* plus a projection head
-    wrapped = {"teacher": {f"backbone.{k}": v for k, v in vit.state_dict().items()} | {"head.mlp.0.weight": torch.zeros(2)}}
+    wrapped = {
+        "teacher": {f"backbone.{k}": v for k, v in vit.state_dict().items()} | {"head.mlp.0.weight": torch.zeros(2)}
+    }
     torch.save(wrapped, tmp_path / "full.pth")
-    torch.testing.assert_close(CK.load_dino_vit(tmp_path / "full.pth", **TINY).forward_features(x), vit.forward_features(x))
+    torch.testing.assert_close(
+        CK.load_dino_vit(tmp_path / "full.pth", **TINY).forward_features(x), vit.forward_features(x)
+    )
 
 
 def test_wrong_layout_lists_the_keys(tmp_path):
@@ -92,7 +96,9 @@ def test_preprocess_normalizes_once_and_refuses_normalized_input():
     img = torch.full((1, 3, 64, 64), 255, dtype=torch.uint8)
     out = prep(img)
     assert out.shape == (1, 3, 32, 32)
-    torch.testing.assert_close(out[0, :, 0, 0], (1 - torch.tensor([0.485, 0.456, 0.406])) / torch.tensor([0.229, 0.224, 0.225]))
+    torch.testing.assert_close(
+        out[0, :, 0, 0], (1 - torch.tensor([0.485, 0.456, 0.406])) / torch.tensor([0.229, 0.224, 0.225])
+    )
     torch.testing.assert_close(prep(img.float() / 255), out)  # [0, 1] floats are the same images
     with pytest.raises(ValueError, match="normalized"):
         prep(out)

@@ -1,18 +1,16 @@
 """Snakemake end to end on a tiny config in a temporary directory: demos -> replay -> frames store -> report."""
 
 import json
-import os
 import shutil
 import subprocess
 import sys
-from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 import yaml
-
 from conftest import REPO
+
 from ocpipe import frames, frames_store
 
 SNAKEMAKE = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile")]

@@ -25,7 +25,9 @@ def attention_maps(frames_path: str | Path, features_path: str | Path, pairs: li
 
     frames, feats = open_store(frames_path), open_features(features_path)
     if "masks" not in feats:
-        raise ValueError(f"{features_path} has no slot masks (encoder {feats.attrs['encoder']!r} is not a slot encoder)")
+        raise ValueError(
+            f"{features_path} has no slot masks (encoder {feats.attrs['encoder']!r} is not a slot encoder)"
+        )
     fa, windows = frames.attrs.asdict(), feats.attrs.get("crop_windows")
     offsets, cams = fa["episode_offsets"], fa["cameras"]
     K = feats["masks"].shape[2]

@@ -20,7 +20,9 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("summary", help="print the headline figures of everything built under a results folder")
     p.add_argument("results", nargs="?", default="results")
     p = sub.add_parser("config-docs", help="regenerate config/README.md from the config schema and config/config.yaml")
-    p.add_argument("--check", action="store_true", help="only check that config/README.md is up to date (exit 1 if not)")
+    p.add_argument(
+        "--check", action="store_true", help="only check that config/README.md is up to date (exit 1 if not)"
+    )
     args = parser.parse_args(argv)
 
     if args.cmd == "config-docs":

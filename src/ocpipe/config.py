@@ -5,7 +5,6 @@ from __future__ import annotations
 import copy
 import difflib
 from pathlib import Path
-from typing import Any
 
 import jsonschema
 import yaml
@@ -106,12 +105,15 @@ def _cross_field_problems(config: dict) -> list[str]:
     pool = range(pool_start, pool_start + config["evaluation"]["seed_pool_size"])
     if seeds.start < pool.stop and pool.start < seeds.stop:
         problems.append(
-            f"  demos.seed_start: demo seeds {seeds.start}..{seeds.stop - 1} (num_demos x attempts_per_demo) overlap the "
-            f"held-out evaluation pool {pool.start}..{pool.stop - 1} (evaluation.seed_pool_start); move one of them"
+            f"  demos.seed_start: demo seeds {seeds.start}..{seeds.stop - 1} (num_demos x attempts_per_demo) "
+            f"overlap the held-out evaluation pool {pool.start}..{pool.stop - 1} (evaluation.seed_pool_start); "
+            "move one of them"
         )
     if config["demos"]["shards"] > config["demos"]["num_demos"]:
-        problems.append(f"  demos.shards: {config['demos']['shards']} shards for {config['demos']['num_demos']} demos; "
-                        "use at most one shard per demo")
+        problems.append(
+            f"  demos.shards: {config['demos']['shards']} shards for {config['demos']['num_demos']} demos; "
+            "use at most one shard per demo"
+        )
     if config["cameras"]["near"] >= config["cameras"]["far"]:
         problems.append("  cameras.near: must be smaller than cameras.far")
     if config["demos"]["source"] == "import":
@@ -127,8 +129,11 @@ def _cross_field_problems(config: dict) -> list[str]:
     ev = config["evaluation"]
     for key in ("sweep_episodes", "stability_episodes", "failure_episodes"):
         if ev[key] > ev["seed_pool_size"]:
-            problems.append(f"  evaluation.{key}: {ev[key]} episodes > evaluation.seed_pool_size {ev['seed_pool_size']}")
-    from .experiments import problems as policy_problems, resolve
+            problems.append(
+                f"  evaluation.{key}: {ev[key]} episodes > evaluation.seed_pool_size {ev['seed_pool_size']}"
+            )
+    from .experiments import problems as policy_problems
+    from .experiments import resolve
 
     problems += policy_problems(config["policy"])
     for name in config["experiments"]:

@@ -55,7 +55,9 @@ def render(schema: dict, defaults: dict) -> str:
         rows: list[tuple[str, str, str, str]] = []
         default = defaults.get(key, _MISSING) if isinstance(defaults, dict) else _MISSING
         optional = key not in schema.get("required", [])
-        plain_object = isinstance(node.get("properties"), dict) and not isinstance(node.get("additionalProperties"), dict)
+        plain_object = isinstance(node.get("properties"), dict) and not isinstance(
+            node.get("additionalProperties"), dict
+        )
         renderer.walk(node, key, default, optional, rows, own_row=not plain_object)
         lines += [f"## {key}", ""]
         if plain_object and node.get("description"):
@@ -99,13 +101,21 @@ class _Renderer:
             shown = "" if children or default is _MISSING else _code(_flow(default))
             if default is _MISSING and not children and not _is_placeholder_path(path):
                 shown = "not set"
-            rows.append((_code(path), self.type_text(node, optional, path), shown, _one_line(node.get("description", ""))))
+            rows.append(
+                (_code(path), self.type_text(node, optional, path), shown, _one_line(node.get("description", "")))
+            )
         props = node.get("properties")
         if isinstance(props, dict):
             first = self.seen.get(id(props))
             if first is not None and first != path and id(props) not in self.defs:
-                rows.append((_code(f"{path}.*"), f"any key of `{first}`", "",
-                             f"overrides `{first}.*`: same keys, allowed values and descriptions as there"))
+                rows.append(
+                    (
+                        _code(f"{path}.*"),
+                        f"any key of `{first}`",
+                        "",
+                        f"overrides `{first}.*`: same keys, allowed values and descriptions as there",
+                    )
+                )
             else:
                 self.seen[id(props)] = path
                 required = node.get("required", [])
@@ -122,8 +132,14 @@ class _Renderer:
                 for key, value in default.items():
                     if props and key in props:
                         continue
-                    rows.append((_code(f"{path}.{key}"), f"`{path}.{name}`", _code(_flow(value)),
-                                 f"an entry of `{path}.{name}` in `config/config.yaml`"))
+                    rows.append(
+                        (
+                            _code(f"{path}.{key}"),
+                            f"`{path}.{name}`",
+                            _code(_flow(value)),
+                            f"an entry of `{path}.{name}` in `config/config.yaml`",
+                        )
+                    )
 
     def type_text(self, node: dict, optional: bool, path: str) -> str:
         node = self.resolve(node)
@@ -212,8 +228,12 @@ def _flow(value: Any) -> str:
     if isinstance(value, (int, float)):
         return repr(value)
     if isinstance(value, str):
-        plain = value and value.strip() == value and not any(c in value for c in ",:{}[]#'\"&*!|>%@`") \
+        plain = (
+            value
+            and value.strip() == value
+            and not any(c in value for c in ",:{}[]#'\"&*!|>%@`")
             and yaml.safe_load(value) == value
+        )
         return value if plain else json.dumps(value)
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_flow(v) for v in value) + "]"

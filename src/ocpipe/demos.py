@@ -86,22 +86,31 @@ def generate_shard(task: str, config: dict, shard: int, out_h5: str | Path, prog
     env.close()
     if len(lengths) < wanted:
         raise DemoError(
-            f"{task} shard {shard}: only {len(lengths)}/{wanted} successful demos in seeds {seeds.start}..{seeds.stop - 1} "
-            f"({len(failures)} failed plans); raise demos.attempts_per_demo"
+            f"{task} shard {shard}: only {len(lengths)}/{wanted} successful demos in seeds "
+            f"{seeds.start}..{seeds.stop - 1} ({len(failures)} failed plans); raise demos.attempts_per_demo"
         )
     with atomic_path(_json_path(out_h5)) as tmp_json, atomic_path(out_h5) as tmp_h5:
         shutil.move(work / "shard.h5", tmp_h5)
         shutil.move(work / "shard.json", tmp_json)
     shutil.rmtree(work, ignore_errors=True)
-    return {"task": task, "shard": shard, "seeds_tried": len(lengths) + len(failures), "demos": len(lengths),
-            "failed_plans": failures, "mean_length": float(np.mean(lengths)), "max_length": int(np.max(lengths))}
+    return {
+        "task": task,
+        "shard": shard,
+        "seeds_tried": len(lengths) + len(failures),
+        "demos": len(lengths),
+        "failed_plans": failures,
+        "mean_length": float(np.mean(lengths)),
+        "max_length": int(np.max(lengths)),
+    }
 
 
 def _regenerate(path: str | Path) -> str:
     """What to do about a damaged demo set (path: its .h5 or its .json)."""
     p = Path(path)
-    return (f"delete {p.with_suffix('.h5').name} and {p.with_suffix('.json').name} and rerun the workflow to "
-            "regenerate them (an imported demo set: copy it again from its source)")
+    return (
+        f"delete {p.with_suffix('.h5').name} and {p.with_suffix('.json').name} and rerun the workflow to "
+        "regenerate them (an imported demo set: copy it again from its source)"
+    )
 
 
 def episodes(json_path: str | Path) -> list[dict]:
@@ -109,8 +118,9 @@ def episodes(json_path: str | Path) -> list[dict]:
     try:
         meta = json.loads(Path(json_path).read_text())
     except json.JSONDecodeError as exc:
-        raise DemoError(f"{json_path}: not valid JSON ({exc}); the file is truncated or corrupt: "
-                        f"{_regenerate(json_path)}") from exc
+        raise DemoError(
+            f"{json_path}: not valid JSON ({exc}); the file is truncated or corrupt: {_regenerate(json_path)}"
+        ) from exc
     if not isinstance(meta, dict) or not isinstance(meta.get("episodes"), list):
         raise DemoError(f"{json_path}: no 'episodes' list, so not a ManiSkill demo json: {_regenerate(json_path)}")
     eps = sorted(meta["episodes"], key=lambda e: int(e["episode_id"]))
@@ -125,8 +135,9 @@ def open_h5(path: str | Path) -> h5py.File:
     try:
         return h5py.File(path, "r")
     except OSError as exc:
-        raise DemoError(f"{path}: not a readable HDF5 file ({exc}); it is truncated or corrupt: "
-                        f"{_regenerate(path)}") from exc
+        raise DemoError(
+            f"{path}: not a readable HDF5 file ({exc}); it is truncated or corrupt: {_regenerate(path)}"
+        ) from exc
 
 
 def check_pair(h5_path: str | Path) -> list[dict]:
@@ -143,10 +154,13 @@ def check_pair(h5_path: str | Path) -> list[dict]:
         try:
             keys = {k for k in h5.keys() if _TRAJ_KEY.match(k)}
         except (OSError, KeyError, RuntimeError) as exc:
-            raise DemoError(f"{h5_path}: its list of trajectories cannot be read ({exc}); the file is corrupt: "
-                            f"{_regenerate(h5_path)}") from exc
+            raise DemoError(
+                f"{h5_path}: its list of trajectories cannot be read ({exc}); the file is corrupt: "
+                f"{_regenerate(h5_path)}"
+            ) from exc
     listed = {f"traj_{ep['episode_id']}" for ep in eps}
     if keys != listed:
+
         def some(names):
             return ", ".join(sorted(names, key=lambda k: int(k[5:]))[:5]) + (" ..." if len(names) > 5 else "")
 
@@ -155,8 +169,10 @@ def check_pair(h5_path: str | Path) -> list[dict]:
             parts.append(f"missing from the h5: {some(listed - keys)}")
         if keys - listed:
             parts.append(f"not in the json: {some(keys - listed)}")
-        raise DemoError(f"{h5_path} does not match {json_path} ({'; '.join(parts)}): the two files come from "
-                        f"different runs or one was cut short: {_regenerate(h5_path)}")
+        raise DemoError(
+            f"{h5_path} does not match {json_path} ({'; '.join(parts)}): the two files come from "
+            f"different runs or one was cut short: {_regenerate(h5_path)}"
+        )
     return eps
 
 
@@ -176,12 +192,18 @@ def first_unreadable(h5_path: str | Path) -> str | None:
 
 def unreadable_error(h5_path: str | Path, key: str, exc: Exception | None = None) -> DemoError:
     why = f" ({exc})" if exc is not None else ""
-    return DemoError(f"{h5_path}: episode {key.removeprefix('traj_')} ({key}) cannot be read{why}; the file is "
-                     f"corrupt: {_regenerate(h5_path)}")
+    return DemoError(
+        f"{h5_path}: episode {key.removeprefix('traj_')} ({key}) cannot be read{why}; the file is "
+        f"corrupt: {_regenerate(h5_path)}"
+    )
 
 
-def merge(shard_h5s: list[str | Path], out_h5: str | Path, shard_reports: list[dict] | None = None,
-          report_path: str | Path | None = None) -> dict:
+def merge(
+    shard_h5s: list[str | Path],
+    out_h5: str | Path,
+    shard_reports: list[dict] | None = None,
+    report_path: str | Path | None = None,
+) -> dict:
     """Concatenate shard files in the given order into one demo set with episode ids 0..N-1."""
     from mani_skill.trajectory.merge_trajectory import merge_trajectories
 
@@ -264,7 +286,7 @@ def _to_absolute_joint_actions(group: h5py.Group, key: str) -> None:
         raise DemoError(f"{key}: no env_states/articulations recorded; cannot convert actions to pd_joint_pos")
     robot = arts[sorted(arts)[0]][()]  # (T+1, 13 + 2 * dof): root pose/vel, then qpos, then qvel
     dof = (robot.shape[1] - 13) // 2
-    qpos_next = robot[1:, 13:13 + dof]
+    qpos_next = robot[1:, 13 : 13 + dof]
     actions = group["actions"][()]
     absolute = np.concatenate([qpos_next[:, :7], actions[:, -1:]], axis=1).astype(np.float32)
     del group["actions"]

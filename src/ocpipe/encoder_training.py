@@ -6,7 +6,6 @@ import time
 from dataclasses import fields
 from pathlib import Path
 
-import numpy as np
 import polars as pl
 import torch
 
@@ -51,9 +50,17 @@ def train_stage(store_paths: list[str | Path], enc_cfg: dict, seed: int, out_ckp
                                       device=pick_device(enc_cfg["device"]))
     train_seconds = time.perf_counter() - t0
     with atomic_path(out_ckpt) as tmp:
-        ssl_slots.save(model, tmp, {"workspace_min": enc_cfg["workspace_min"], "workspace_max": enc_cfg["workspace_max"],
-                                    "train_stores": [str(p) for p in store_paths], "train_images": len(images),
-                                    "train_seconds": train_seconds})
+        ssl_slots.save(
+            model,
+            tmp,
+            {
+                "workspace_min": enc_cfg["workspace_min"],
+                "workspace_max": enc_cfg["workspace_max"],
+                "train_stores": [str(p) for p in store_paths],
+                "train_images": len(images),
+                "train_seconds": train_seconds,
+            },
+        )
     with atomic_path(out_curve) as tmp:
         pl.DataFrame(curve).write_parquet(tmp)
     # decomposition on episodes the encoder never saw
@@ -66,11 +73,17 @@ def train_stage(store_paths: list[str | Path], enc_cfg: dict, seed: int, out_ckp
             _, masks = model.encode(x.flatten(0, 1))
         masks = masks.reshape(n - hi, len(a["cameras"]), *masks.shape[1:]).numpy()
         scores[Path(path).stem] = {
-            "frames": n - hi, "episodes": enc_cfg["holdout_episodes"],
+            "frames": n - hi,
+            "episodes": enc_cfg["holdout_episodes"],
             **score_masks(masks, store["seg"][hi:n], windows, a["segmentation_ids"], a["task"], a["cameras"]),
         }
-    report = {"train_seconds": train_seconds, "train_images": len(images), "steps": cfg.steps,
-              "final_loss": curve[-1]["loss"], "final_mask_entropy": curve[-1]["mask_entropy"],
-              "held_out": scores}
+    report = {
+        "train_seconds": train_seconds,
+        "train_images": len(images),
+        "steps": cfg.steps,
+        "final_loss": curve[-1]["loss"],
+        "final_mask_entropy": curve[-1]["mask_entropy"],
+        "held_out": scores,
+    }
     write_json(out_eval, report)
     return report

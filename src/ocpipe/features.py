@@ -62,7 +62,9 @@ def encode_store(encoder: FrozenEncoder, frames_path: str | Path, out_path: str 
         tokens_arr = masks_arr = geometry_arr = None
         C, R = rgb.shape[1], int(frames.attrs["resolution"])
         windows = getattr(encoder, "windows", full_image_windows(C, R))
-        bar = tqdm(total=N, desc=f"encode {Path(frames_path).name} [{encoder.name}]", unit="frame", disable=not progress)
+        bar = tqdm(
+            total=N, desc=f"encode {Path(frames_path).name} [{encoder.name}]", unit="frame", disable=not progress
+        )
         # read one store chunk at a time (a frames chunk is the unit of I/O), encode it in batches
         step = rgb.chunks[0] * max(1, batch_size // rgb.chunks[0])
         for lo in range(0, N, step):
@@ -75,13 +77,19 @@ def encode_store(encoder: FrozenEncoder, frames_path: str | Path, out_path: str 
                 geometry = slot_geometry(mask_t, windows, R).cpu().numpy()
                 masks = mask_t.cpu().numpy().astype(dtype)
             if tokens_arr is None:
-                tokens_arr = root.create_array("tokens", shape=(N, *tokens.shape[1:]), dtype=dtype,
-                                               chunks=(chunk_frames, *tokens.shape[1:]))
+                tokens_arr = root.create_array(
+                    "tokens", shape=(N, *tokens.shape[1:]), dtype=dtype, chunks=(chunk_frames, *tokens.shape[1:])
+                )
                 if masks is not None:
-                    masks_arr = root.create_array("masks", shape=(N, *masks.shape[1:]), dtype=dtype,
-                                                  chunks=(chunk_frames, *masks.shape[1:]))
-                    geometry_arr = root.create_array("geometry", shape=(N, *geometry.shape[1:]), dtype="float32",
-                                                     chunks=(chunk_frames, *geometry.shape[1:]))
+                    masks_arr = root.create_array(
+                        "masks", shape=(N, *masks.shape[1:]), dtype=dtype, chunks=(chunk_frames, *masks.shape[1:])
+                    )
+                    geometry_arr = root.create_array(
+                        "geometry",
+                        shape=(N, *geometry.shape[1:]),
+                        dtype="float32",
+                        chunks=(chunk_frames, *geometry.shape[1:]),
+                    )
             tokens_arr[lo : lo + len(tokens)] = tokens
             if masks_arr is not None:
                 masks_arr[lo : lo + len(masks)] = masks
@@ -89,8 +97,14 @@ def encode_store(encoder: FrozenEncoder, frames_path: str | Path, out_path: str 
             bar.update(len(block))
         bar.close()
         seconds = time.perf_counter() - t0
-        root.attrs.update({**_provenance(encoder, frames, frames_path), "encode_seconds": seconds,
-                           "frames_per_second": N / seconds, **getattr(encoder, "extra_attrs", {})})
+        root.attrs.update(
+            {
+                **_provenance(encoder, frames, frames_path),
+                "encode_seconds": seconds,
+                "frames_per_second": N / seconds,
+                **getattr(encoder, "extra_attrs", {}),
+            }
+        )
     return {"frames": N, "seconds": seconds, "frames_per_second": N / seconds}
 
 
@@ -122,8 +136,10 @@ class PolicyTokens:
 
     def __init__(self, feats: zarr.Group, geometry: bool, source: str = ""):
         if geometry and "geometry" not in feats:
-            raise ValueError(f"{source}: policy.slot_geometry needs slot masks, and this features store has no "
-                             "'geometry' array (encoder without masks, or a store built before it existed: rebuild it)")
+            raise ValueError(
+                f"{source}: policy.slot_geometry needs slot masks, and this features store has no "
+                "'geometry' array (encoder without masks, or a store built before it existed: rebuild it)"
+            )
         self.tokens, self.geometry = feats["tokens"], feats["geometry"] if geometry else None
         extra = self.geometry.shape[-1] if geometry else 0
         self.shape = (*self.tokens.shape[:-1], self.tokens.shape[-1] + extra)
@@ -143,8 +159,10 @@ def open_features(path: str | Path) -> zarr.Group:
         raise FileNotFoundError(f"no features store at {path}")
     root = zarr.open_group(str(path), mode="r", zarr_format=3)
     if "tokens" not in root:
-        raise ValueError(f"{path}: features store has no 'tokens' array (damaged or cut short): delete it and rerun "
-                         "the workflow to rebuild it")
+        raise ValueError(
+            f"{path}: features store has no 'tokens' array (damaged or cut short): delete it and rerun "
+            "the workflow to rebuild it"
+        )
     return root
 
 
@@ -160,11 +178,14 @@ def check_provenance(feats: zarr.Group, features_path, frames: zarr.Group, frame
     fa = frames.attrs.asdict()
     differ = [k for k in PROVENANCE_KEYS if k in recorded and k in fa and recorded[k] != fa[k]]
     if differ:
+
         def short(v):
             text = repr(v)
             return text if len(text) <= 40 else text[:37] + "..."
 
         what = "; ".join(f"{k}: {short(recorded[k])} there, {short(fa[k])} here" for k in differ)
-        raise ValueError(f"{features_path} was encoded from {feats.attrs.get('frames_store', 'another frames store')}, "
-                         f"not from {frames_path} ({what}): delete the features store and rerun the workflow to "
-                         "rebuild it from this frames store")
+        raise ValueError(
+            f"{features_path} was encoded from {feats.attrs.get('frames_store', 'another frames store')}, "
+            f"not from {frames_path} ({what}): delete the features store and rerun the workflow to "
+            "rebuild it from this frames store"
+        )

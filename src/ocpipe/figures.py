@@ -13,7 +13,8 @@ import polars as pl  # noqa: E402
 
 from .atomic import atomic_path  # noqa: E402
 from .tables import TABLE5_2_CLASSES, stability_summary  # noqa: E402
-from .taxonomy import FUNNEL, counts, funnel as funnel_counts  # noqa: E402
+from .taxonomy import FUNNEL, counts  # noqa: E402
+from .taxonomy import funnel as funnel_counts
 
 
 def _save(fig, path) -> None:

@@ -45,8 +45,9 @@ def contact_sheet(store_path: str | Path, out_png: str | Path, n_episodes: int, 
     R, cams, offsets = a["resolution"], a["cameras"], a["episode_offsets"]
     n_ep = len(offsets) - 1
     episodes = np.unique(np.linspace(0, n_ep - 1, min(n_episodes, n_ep)).round().astype(int))
-    fig, axes = plt.subplots(len(episodes) * len(cams), n_steps, figsize=(1.8 * n_steps, 1.8 * len(episodes) * len(cams)),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        len(episodes) * len(cams), n_steps, figsize=(1.8 * n_steps, 1.8 * len(episodes) * len(cams)), squeeze=False
+    )
     for ei, e in enumerate(episodes):
         steps = np.linspace(offsets[e], offsets[e + 1] - 1, n_steps).round().astype(int)
         for si, frame in enumerate(steps):

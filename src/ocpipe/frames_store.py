@@ -49,9 +49,13 @@ class StoreWriter:
             self.arrays[name] = self.root.create_array(
                 name, shape=(0, *shape), dtype=dtype, chunks=(_chunk_len(name, self.C, self.R, chunk_frames), *shape))
         if moving_cameras:  # the hand camera moves: its matrices change every frame
-            for name, shape in (("cam_intrinsic_per_frame", (self.C, 3, 3)), ("cam_extrinsic_per_frame", (self.C, 3, 4))):
-                self.arrays[name] = self.root.create_array(name, shape=(0, *shape), dtype="float32",
-                                                           chunks=(chunk_frames, *shape))
+            for name, shape in (
+                ("cam_intrinsic_per_frame", (self.C, 3, 3)),
+                ("cam_extrinsic_per_frame", (self.C, 3, 4)),
+            ):
+                self.arrays[name] = self.root.create_array(
+                    name, shape=(0, *shape), dtype="float32", chunks=(chunk_frames, *shape)
+                )
         self.buffers = {name: [] for name in self.arrays}
         self.buffered = 0
         self.chunk_frames = chunk_frames
@@ -81,7 +85,11 @@ class StoreWriter:
 
     def close(self, attrs: dict) -> None:
         self.flush()
-        K, E = self.camera_matrices if self.camera_matrices is not None else (np.zeros((self.C, 3, 3)), np.zeros((self.C, 3, 4)))
+        K, E = (
+            self.camera_matrices
+            if self.camera_matrices is not None
+            else (np.zeros((self.C, 3, 3)), np.zeros((self.C, 3, 4)))
+        )
         self.root.create_array("cam_intrinsic", shape=(self.C, 3, 3), dtype="float64")[...] = K
         self.root.create_array("cam_extrinsic", shape=(self.C, 3, 4), dtype="float64")[...] = E
         self.root.attrs.update(attrs)
@@ -99,8 +107,9 @@ def open_store(path: str | Path, need: tuple[str, ...] = ()) -> zarr.Group:
     root = zarr.open_group(str(path), mode="r", zarr_format=3)
     problems = _array_problems(root, need) if need else []
     if problems:
-        raise ValueError(f"{path}: frames store is damaged: {'; '.join(problems)}; delete it and rerun the workflow "
-                         "to rebuild it")
+        raise ValueError(
+            f"{path}: frames store is damaged: {'; '.join(problems)}; delete it and rerun the workflow to rebuild it"
+        )
     return root
 
 
@@ -158,12 +167,20 @@ def merge(shard_paths: list[str | Path], out_path: str | Path, chunk_frames: int
                 block["cam_intrinsic"] = np.broadcast_to(s["cam_intrinsic"][...], (hi - lo, *s["cam_intrinsic"].shape))
                 block["cam_extrinsic"] = np.broadcast_to(s["cam_extrinsic"][...], (hi - lo, *s["cam_extrinsic"].shape))
                 if "cam_extrinsic_per_frame" in s:
-                    block["cam_intrinsic"], block["cam_extrinsic"] = block["cam_intrinsic_per_frame"], block["cam_extrinsic_per_frame"]
+                    block["cam_intrinsic"], block["cam_extrinsic"] = (
+                        block["cam_intrinsic_per_frame"],
+                        block["cam_extrinsic_per_frame"],
+                    )
                 writer.add(block, ep_base + e)
             ep_base += len(a["episode_seeds"])
-        attrs = dict(first, episode_seeds=seeds, episode_ids=ids, episode_offsets=offsets,
-                     replay_success_rate=float(np.mean([s.attrs["replay_success_rate"] for s in shards])),
-                     shards=len(shards))
+        attrs = dict(
+            first,
+            episode_seeds=seeds,
+            episode_ids=ids,
+            episode_offsets=offsets,
+            replay_success_rate=float(np.mean([s.attrs["replay_success_rate"] for s in shards])),
+            shards=len(shards),
+        )
         writer.close(attrs)
     return attrs
 
@@ -192,8 +209,10 @@ def check_contract(path: str | Path) -> list[str]:
             problems.append(f"{name}: expected shape {shape}")
     offsets = attrs["episode_offsets"]
     if len(offsets) != len(attrs["episode_seeds"]) + 1 or offsets[0] != 0 or offsets[-1] != N:
-        problems.append(f"episode_offsets {offsets[:3]}...{offsets[-1:]} do not partition {N} frames "
-                        f"into {len(attrs['episode_seeds'])} episodes")
+        problems.append(
+            f"episode_offsets {offsets[:3]}...{offsets[-1:]} do not partition {N} frames "
+            f"into {len(attrs['episode_seeds'])} episodes"
+        )
     elif N:
         ep_index = root["episode_index"][...]
         expect = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))

@@ -84,8 +84,21 @@ class Replayer:
         reset_kwargs = dict(episode.get("reset_kwargs") or {})
         reset_kwargs["seed"] = episode["episode_seed"]
         self.env.reset(**reset_kwargs)
-        rows: dict[str, list] = {k: [] for k in ("rgb", "seg", "qpos", "tcp_pos", "obj_pos", "obj_quat", "goal_pos", "is_grasped",
-                                                 "cam_intrinsic", "cam_extrinsic")}
+        rows: dict[str, list] = {
+            k: []
+            for k in (
+                "rgb",
+                "seg",
+                "qpos",
+                "tcp_pos",
+                "obj_pos",
+                "obj_quat",
+                "goal_pos",
+                "is_grasped",
+                "cam_intrinsic",
+                "cam_extrinsic",
+            )
+        }
         max_err, info = 0.0, {}
         for t, action in enumerate(actions):
             u.set_state_dict(_index_state(states, t))
@@ -104,10 +117,12 @@ class Replayer:
             max_err = max(max_err, float(np.abs(_flat_current(self.env, states) - _flat_state(states, t + 1)).max()))
         arrays = {k: np.asarray(v) for k, v in rows.items()}
         arrays["action"] = actions.astype(np.float32)
-        arrays["goal2d_exact"] = projection.goal2d(arrays["goal_pos"], arrays["cam_intrinsic"],
-                                                   arrays["cam_extrinsic"], self.resolution).astype(np.float32)
-        arrays["goal2d_approx"] = projection.goal2d(arrays["goal_pos"], self.approx_K, self.approx_E,
-                                                    self.resolution).astype(np.float32)
+        arrays["goal2d_exact"] = projection.goal2d(
+            arrays["goal_pos"], arrays["cam_intrinsic"], arrays["cam_extrinsic"], self.resolution
+        ).astype(np.float32)
+        arrays["goal2d_approx"] = projection.goal2d(
+            arrays["goal_pos"], self.approx_K, self.approx_E, self.resolution
+        ).astype(np.float32)
         success = bool(info.get("success", torch.tensor([False]))[0].item())
         return EpisodeFrames(int(episode["episode_id"]), int(episode["episode_seed"]), success, max_err, arrays)
 

@@ -16,7 +16,9 @@ def mask_diagnostics(masks: np.ndarray) -> dict:
     denom = np.minimum(area[:, :, None], area[:, None, :])
     iu = np.triu_indices(K, 1)
     overlap = (inter / np.maximum(denom, 1e-9))[:, iu[0], iu[1]]
-    coherence = 0.5 * (np.abs(np.diff(masks, axis=2)).mean(axis=(2, 3)) + np.abs(np.diff(masks, axis=3)).mean(axis=(2, 3)))
+    coherence = 0.5 * (
+        np.abs(np.diff(masks, axis=2)).mean(axis=(2, 3)) + np.abs(np.diff(masks, axis=3)).mean(axis=(2, 3))
+    )
     p = np.clip(flat, 1e-9, 1.0)
     pixel_entropy = -(p * np.log(p)).sum(axis=1).mean(axis=1)  # (M,) entropy over slots, per pixel
     usage = area / area.sum(axis=1, keepdims=True)
@@ -61,8 +63,9 @@ def adjusted_rand_index(labels_true: np.ndarray, labels_pred: np.ndarray) -> flo
     return float((sum_cells - expected) / (max_index - expected))
 
 
-def decomposition_scores(masks: np.ndarray, object_ids: np.ndarray, foreground: np.ndarray,
-                         named: dict[str, np.ndarray]) -> dict:
+def decomposition_scores(
+    masks: np.ndarray, object_ids: np.ndarray, foreground: np.ndarray, named: dict[str, np.ndarray]
+) -> dict:
     """masks (M, K, h, w); object_ids (M, h, w) ground-truth object per cell (robot links merged into one id);
     foreground (M, h, w) bool; named: object name -> (M, h, w) bool mask.
 
@@ -74,8 +77,11 @@ def decomposition_scores(masks: np.ndarray, object_ids: np.ndarray, foreground: 
     visible named object's; ``separate_{a}_{b}`` the fraction of images with both visible where their slots differ.
     These say whether objects are told apart even where a slot also takes part of the background (low IoU)."""
     pred = masks.argmax(axis=1)  # (M, h, w)
-    aris = [adjusted_rand_index(object_ids[m][foreground[m]], pred[m][foreground[m]])
-            for m in range(len(pred)) if foreground[m].sum() > 1 and len(np.unique(object_ids[m][foreground[m]])) > 1]
+    aris = [
+        adjusted_rand_index(object_ids[m][foreground[m]], pred[m][foreground[m]])
+        for m in range(len(pred))
+        if foreground[m].sum() > 1 and len(np.unique(object_ids[m][foreground[m]])) > 1
+    ]
     out = {"fg_ari_mean": float(np.mean(aris)) if aris else None, "fg_ari_images": len(aris)}
     K = masks.shape[1]
     for name, obj in named.items():
@@ -100,14 +106,15 @@ def _separation(pred: np.ndarray, background: np.ndarray, named: dict[str, np.nd
         return int(np.bincount(pred[m][region], minlength=K).argmax()) if region.any() else None
 
     names = list(named)
-    slots = [{n: majority(m, named[n][m]) for n in names} | {"_bg": majority(m, background[m])}
-             for m in range(len(pred))]
+    slots = [
+        {n: majority(m, named[n][m]) for n in names} | {"_bg": majority(m, background[m])} for m in range(len(pred))
+    ]
     out = {}
     for n in names:
         own = [all(v is None or v != s[n] for k, v in s.items() if k != n) for s in slots if s[n] is not None]
         out[f"own_slot_{n}"] = float(np.mean(own)) if own else None
     for i, a in enumerate(names):
-        for b in names[i + 1:]:
+        for b in names[i + 1 :]:
             sep = [s[a] != s[b] for s in slots if s[a] is not None and s[b] is not None]
             out[f"separate_{a}_{b}"] = float(np.mean(sep)) if sep else None
     return out

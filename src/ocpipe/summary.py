@@ -20,28 +20,40 @@ def summary_lines(results: str | Path) -> list[str]:
     for path in sorted(results.glob("frames/*.report.json")):
         r = json.loads(path.read_text())
         offsets = ", ".join(f"{c} {_fmt(v, '.2f')} px" for c, v in r["goal2d_approx_offset_px_mean"].items())
-        lines.append(f"frames    {path.name.removesuffix('.report.json')}: {r['frames']} frames / {r['episodes']} "
-                     f"episodes, replay success {r['replay_success_rate']:.3f}, "
-                     f"{_fmt(r.get('frames_per_second_per_job'), '.1f')} frames/s per job, approx-goal offset {offsets}")
+        lines.append(
+            f"frames    {path.name.removesuffix('.report.json')}: {r['frames']} frames / {r['episodes']} "
+            f"episodes, replay success {r['replay_success_rate']:.3f}, "
+            f"{_fmt(r.get('frames_per_second_per_job'), '.1f')} frames/s per job, approx-goal offset {offsets}"
+        )
     ev = results / "encoders" / "slots_ssl" / "held_out_decomposition.json"
     if ev.is_file():
         r = json.loads(ev.read_text())
         lines.append(f"encoder   slots_ssl: trained {r['steps']} steps in {r['train_seconds'] / 60:.1f} min")
         for store, s in r["held_out"].items():
             a = s["all"]
-            named = ", ".join(f"{k.removeprefix('best_slot_iou_')} {_fmt(v)}" for k, v in a.items()
-                              if k.startswith("best_slot_iou_") and not k.endswith("_images"))
-            lines.append(f"          held-out {store} ({s['frames']} frames): FG-ARI {_fmt(a['fg_ari_mean'])}, "
-                         f"best-slot IoU {named}")
+            named = ", ".join(
+                f"{k.removeprefix('best_slot_iou_')} {_fmt(v)}"
+                for k, v in a.items()
+                if k.startswith("best_slot_iou_") and not k.endswith("_images")
+            )
+            lines.append(
+                f"          held-out {store} ({s['frames']} frames): FG-ARI {_fmt(a['fg_ari_mean'])}, "
+                f"best-slot IoU {named}"
+            )
     for path in sorted(results.glob("features/*.diagnostics.json")):
         r = json.loads(path.read_text())
-        lines.append(f"features  {path.name.removesuffix('.diagnostics.json')}: tokens {r['tokens_shape']}, "
-                     f"{_fmt(r.get('encode_frames_per_second'), '.1f')} frames/s encoding")
+        lines.append(
+            f"features  {path.name.removesuffix('.diagnostics.json')}: tokens {r['tokens_shape']}, "
+            f"{_fmt(r.get('encode_frames_per_second'), '.1f')} frames/s encoding"
+        )
         if "probes" in r:
             p = r["probes"]
-            reads = "; ".join(f"{name.removesuffix('_pos')} " + ", ".join(
-                f"{kind} {v['median_cm']:.1f}" for kind, v in p[name].items()) for name in ("obj_pos", "goal_pos",
-                                                                                            "tcp_pos") if name in p)
+            reads = "; ".join(
+                f"{name.removesuffix('_pos')} "
+                + ", ".join(f"{kind} {v['median_cm']:.1f}" for kind, v in p[name].items())
+                for name in ("obj_pos", "goal_pos", "tcp_pos")
+                if name in p
+            )
             lines.append(f"          position probes, median cm on {p['test_episodes']} held-out episodes: {reads}")
     for path in sorted(results.glob("runs/*/train_log.parquet")):
         import polars as pl
@@ -49,10 +61,18 @@ def summary_lines(results: str | Path) -> list[str]:
         log = pl.read_parquet(path)
         best = path.parent / "best.json"
         picked = f", best checkpoint epoch {json.loads(best.read_text())['epoch']}" if best.is_file() else ""
-        openloop = (f", open-loop joint error {log['val_joint_err_rad'][-1]:.4f} rad, gripper agreement "
-                    f"{log['val_gripper_agree'][-1]:.3f} (held-out demos)") if "val_joint_err_rad" in log.columns else ""
-        lines.append(f"policy    {path.parent.name}: {log['epoch'].max()} epochs, {log['seconds'].mean():.1f} s/epoch, "
-                     f"final loss {log['loss'][-1]:.4f}{openloop}{picked}")
+        openloop = (
+            (
+                f", open-loop joint error {log['val_joint_err_rad'][-1]:.4f} rad, gripper agreement "
+                f"{log['val_gripper_agree'][-1]:.3f} (held-out demos)"
+            )
+            if "val_joint_err_rad" in log.columns
+            else ""
+        )
+        lines.append(
+            f"policy    {path.parent.name}: {log['epoch'].max()} epochs, {log['seconds'].mean():.1f} s/epoch, "
+            f"final loss {log['loss'][-1]:.4f}{openloop}{picked}"
+        )
     for path in sorted(results.glob("tables/table5_*.md")):
         lines += ["", path.read_text().rstrip()]
     return lines or [f"nothing built under {results} yet"]

@@ -1,6 +1,7 @@
 # Helpers shared by the rule files: target lists, wildcard constraints and config slices passed as params
 # (so a change in one config section reruns exactly the jobs that read it).
 
+
 wildcard_constraints:
     task="PickCube-v1|StackCube-v1",
     cams="dual|native",

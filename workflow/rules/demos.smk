@@ -8,24 +8,26 @@ if config["demos"]["source"] == "motionplanning":
             h5="results/demos/shards/{task}/shard{shard}.h5",
             json="results/demos/shards/{task}/shard{shard}.json",
             report="results/demos/shards/{task}/shard{shard}.report.json",
-        params:
-            cfg=demo_params(),
         log:
             "results/logs/demos_shard/{task}_shard{shard}.log",
         benchmark:
             "results/benchmarks/demos_shard/{task}_shard{shard}.tsv"
+        conda:
+            "../envs/ocpipe.yaml"
         threads: threads_of("demos")
         resources:
             **resources_of("demos"),
-        conda:
-            "../envs/ocpipe.yaml"
+        params:
+            cfg=demo_params(),
         script:
             "../scripts/demos_shard.py"
 
     rule demos_merge:
         input:
             h5=expand("results/demos/shards/{{task}}/shard{shard}.h5", shard=range(config["demos"]["shards"])),
-            reports=expand("results/demos/shards/{{task}}/shard{shard}.report.json", shard=range(config["demos"]["shards"])),
+            reports=expand(
+                "results/demos/shards/{{task}}/shard{shard}.report.json", shard=range(config["demos"]["shards"])
+            ),
         output:
             h5="results/demos/{task}.h5",
             json="results/demos/{task}.json",
@@ -34,11 +36,11 @@ if config["demos"]["source"] == "motionplanning":
             "results/logs/demos_merge/{task}.log",
         benchmark:
             "results/benchmarks/demos_merge/{task}.tsv"
+        conda:
+            "../envs/ocpipe.yaml"
         threads: threads_of("light")
         resources:
             **resources_of("light"),
-        conda:
-            "../envs/ocpipe.yaml"
         script:
             "../scripts/demos_merge.py"
 
@@ -52,16 +54,16 @@ else:
             h5="results/demos/{task}.h5",
             json="results/demos/{task}.json",
             report="results/demos/{task}.report.json",
-        params:
-            cfg=demo_params(),
         log:
             "results/logs/demos_import/{task}.log",
         benchmark:
             "results/benchmarks/demos_import/{task}.tsv"
+        conda:
+            "../envs/ocpipe.yaml"
         threads: threads_of("light")
         resources:
             **resources_of("light"),
-        conda:
-            "../envs/ocpipe.yaml"
+        params:
+            cfg=demo_params(),
         script:
             "../scripts/demos_import.py"

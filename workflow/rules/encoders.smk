@@ -9,18 +9,18 @@ rule train_slots_ssl:
         ckpt="results/encoders/slots_ssl/model.pt",
         curve="results/encoders/slots_ssl/train_curve.parquet",
         eval="results/encoders/slots_ssl/held_out_decomposition.json",
-    params:
-        enc=config["encoders"]["slots_ssl"],
-        seed=config["seed"],
     log:
         "results/logs/train_slots_ssl.log",
     benchmark:
         "results/benchmarks/train_slots_ssl.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("train_slots_ssl")
     resources:
         **resources_of("train_slots_ssl"),
-    conda:
-        "../envs/ocpipe.yaml"
+    params:
+        enc=config["encoders"]["slots_ssl"],
+        seed=config["seed"],
     script:
         "../scripts/train_slots_ssl.py"
 
@@ -33,17 +33,17 @@ rule train_spot_slots_on_dino:
     output:
         ckpt="results/encoders/spot/slot_module.pt",
         curve="results/encoders/spot/train_curve.parquet",
-    params:
-        spot=config["encoders"]["spot"],
-        seed=config["seed"],
     log:
         "results/logs/train_spot_slots_on_dino.log",
     benchmark:
         "results/benchmarks/train_spot_slots_on_dino.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("train_spot_slots")
     resources:
         **resources_of("train_spot_slots"),
-    conda:
-        "../envs/ocpipe.yaml"
+    params:
+        spot=config["encoders"]["spot"],
+        seed=config["seed"],
     script:
         "../scripts/train_spot_slots_on_dino.py"

@@ -58,20 +58,20 @@ rule sweep:
     output:
         episodes="results/runs/{exp}/sweep/epoch_{epoch}.episodes.parquet",
         steps="results/runs/{exp}/sweep/epoch_{epoch}.steps.parquet",
-    wildcard_constraints:
-        epoch=r"\d{4}",
-    params:
-        **EVAL_PARAMS,
-        kind="sweep",
     log:
         "results/logs/sweep/{exp}_epoch_{epoch}.log",
     benchmark:
         "results/benchmarks/sweep/{exp}_epoch_{epoch}.tsv"
+    wildcard_constraints:
+        epoch=r"\d{4}",
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("evaluate")
     resources:
         **resources_of("evaluate"),
-    conda:
-        "../envs/ocpipe.yaml"
+    params:
+        **EVAL_PARAMS,
+        kind="sweep",
     script:
         "../scripts/evaluate.py"
 
@@ -86,11 +86,11 @@ rule best:
         "results/logs/best/{exp}.log",
     benchmark:
         "results/benchmarks/best/{exp}.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("light")
     resources:
         **resources_of("light"),
-    conda:
-        "../envs/ocpipe.yaml"
     script:
         "../scripts/best.py"
 
@@ -102,41 +102,41 @@ use rule sweep as stability with:
     output:
         episodes="results/runs/{exp}/stability/run_{run}.episodes.parquet",
         steps="results/runs/{exp}/stability/run_{run}.steps.parquet",
+    log:
+        "results/logs/stability/{exp}_run_{run}.log",
+    benchmark:
+        "results/benchmarks/stability/{exp}_run_{run}.tsv"
     wildcard_constraints:
         run=r"\d+",
     params:
         **EVAL_PARAMS,
         kind="stability",
-    log:
-        "results/logs/stability/{exp}_run_{run}.log",
-    benchmark:
-        "results/benchmarks/stability/{exp}_run_{run}.tsv"
 
 
 use rule stability as failure_run with:
     output:
         episodes="results/runs/{exp}/failure_run.episodes.parquet",
         steps="results/runs/{exp}/failure_run.steps.parquet",
-    params:
-        **EVAL_PARAMS,
-        kind="failure_run",
     log:
         "results/logs/failure_run/{exp}.log",
     benchmark:
         "results/benchmarks/failure_run/{exp}.tsv"
+    params:
+        **EVAL_PARAMS,
+        kind="failure_run",
 
 
 use rule stability as train_seed_run with:
     output:
         episodes="results/runs/{exp}/train_seeds.episodes.parquet",
         steps="results/runs/{exp}/train_seeds.steps.parquet",
-    params:
-        **EVAL_PARAMS,
-        kind="train_seeds",
     log:
         "results/logs/train_seed_run/{exp}.log",
     benchmark:
         "results/benchmarks/train_seed_run/{exp}.tsv"
+    params:
+        **EVAL_PARAMS,
+        kind="train_seeds",
 
 
 rule failures:
@@ -144,18 +144,18 @@ rule failures:
         episodes=lambda w: failure_inputs(w.exp),
     output:
         classes="results/runs/{exp}/failures.parquet",
-    params:
-        task=lambda w: policy_of(w)["task"],
-        rules=config["evaluation"]["failure_rules"],
     log:
         "results/logs/failures/{exp}.log",
     benchmark:
         "results/benchmarks/failures/{exp}.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("light")
     resources:
         **resources_of("light"),
-    conda:
-        "../envs/ocpipe.yaml"
+    params:
+        task=lambda w: policy_of(w)["task"],
+        rules=config["evaluation"]["failure_rules"],
     script:
         "../scripts/failures.py"
 
@@ -168,19 +168,19 @@ rule table:
     output:
         csv=report("results/tables/{table}.csv", category="Tables", labels={"table": "{table}"}),
         md="results/tables/{table}.md",
-    wildcard_constraints:
-        table="|".join(study.TITLES),
-    params:
-        cfg=TABLE_CFG,
     log:
         "results/logs/tables/{table}.log",
     benchmark:
         "results/benchmarks/tables/{table}.tsv"
+    wildcard_constraints:
+        table="|".join(study.TITLES),
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("light")
     resources:
         **resources_of("light"),
-    conda:
-        "../envs/ocpipe.yaml"
+    params:
+        cfg=TABLE_CFG,
     script:
         "../scripts/table.py"
 
@@ -191,19 +191,19 @@ rule figure:
         lambda w: study.inputs(config, *study.FIGURES[w.figure]),
     output:
         png=report("results/figures/{figure}.png", category="Figures", labels={"figure": "{figure}"}),
-    wildcard_constraints:
-        figure="|".join(study.FIGURES),
-    params:
-        cfg=TABLE_CFG,
     log:
         "results/logs/figures/{figure}.log",
     benchmark:
         "results/benchmarks/figures/{figure}.tsv"
+    wildcard_constraints:
+        figure="|".join(study.FIGURES),
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("light")
     resources:
         **resources_of("light"),
-    conda:
-        "../envs/ocpipe.yaml"
+    params:
+        cfg=TABLE_CFG,
     script:
         "../scripts/figure.py"
 
@@ -212,19 +212,23 @@ rule figures5_1_to_5_3:
     input:
         study.inputs(config, "table5_1", study.SPATIAL_FIGURES_NEEDS),
     output:
-        fig5_1=report("results/figures/fig5_1.png", category="Figures", labels={"figure": "5.1 training loss and evaluation reward"}),
+        fig5_1=report(
+            "results/figures/fig5_1.png",
+            category="Figures",
+            labels={"figure": "5.1 training loss and evaluation reward"},
+        ),
         fig5_2=report("results/figures/fig5_2.png", category="Figures", labels={"figure": "5.2 episode length"}),
         fig5_3=report("results/figures/fig5_3.png", category="Figures", labels={"figure": "5.3 failure counts"}),
-    params:
-        cfg=TABLE_CFG,
     log:
         "results/logs/figures/fig5_1_to_5_3.log",
     benchmark:
         "results/benchmarks/figures/fig5_1_to_5_3.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("light")
     resources:
         **resources_of("light"),
-    conda:
-        "../envs/ocpipe.yaml"
+    params:
+        cfg=TABLE_CFG,
     script:
         "../scripts/figures5_1_to_5_3.py"

@@ -22,18 +22,18 @@ rule features:
         ckpt=encoder_checkpoint,
     output:
         store=directory("results/features/{task}_{cams}_{res}_{encoder}.zarr"),
-    params:
-        encoders=config["encoders"],
-        features=config["features"],
     log:
         "results/logs/features/{task}_{cams}_{res}_{encoder}.log",
     benchmark:
         "results/benchmarks/features/{task}_{cams}_{res}_{encoder}.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("features")
     resources:
         **resources_of("features"),
-    conda:
-        "../envs/ocpipe.yaml"
+    params:
+        encoders=config["encoders"],
+        features=config["features"],
     script:
         "../scripts/features.py"
 
@@ -44,21 +44,21 @@ rule features_diagnostics:
         features="results/features/{task}_{cams}_{res}_{encoder}.zarr",
     output:
         json="results/features/{task}_{cams}_{res}_{encoder}.diagnostics.json",
+    log:
+        "results/logs/features_diagnostics/{task}_{cams}_{res}_{encoder}.log",
+    benchmark:
+        "results/benchmarks/features_diagnostics/{task}_{cams}_{res}_{encoder}.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
+    threads: threads_of("light")
+    resources:
+        **resources_of("light"),
     params:
         holdout=config["encoders"]["slots_ssl"]["holdout_episodes"],
         train_stores=config["encoders"]["slots_ssl"]["train_stores"],
         probe_holdout=config["features"]["probe_holdout"],
         probe_mlp_epochs=config["features"]["probe_mlp_epochs"],
         seed=config["seed"],
-    log:
-        "results/logs/features_diagnostics/{task}_{cams}_{res}_{encoder}.log",
-    benchmark:
-        "results/benchmarks/features_diagnostics/{task}_{cams}_{res}_{encoder}.tsv"
-    threads: threads_of("light")
-    resources:
-        **resources_of("light"),
-    conda:
-        "../envs/ocpipe.yaml"
     script:
         "../scripts/features_diagnostics.py"
 
@@ -69,18 +69,18 @@ rule attention_maps:
         features="results/features/{task}_{cams}_{res}_{encoder}.zarr",
     output:
         png="results/figures/attention_{task}_{cams}_{res}_{encoder}.png",
-    wildcard_constraints:
-        encoder="slots_ssl|spot",
-    params:
-        pairs=config["features"]["attention_pairs"],
     log:
         "results/logs/attention_maps/{task}_{cams}_{res}_{encoder}.log",
     benchmark:
         "results/benchmarks/attention_maps/{task}_{cams}_{res}_{encoder}.tsv"
+    wildcard_constraints:
+        encoder="slots_ssl|spot",
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("light")
     resources:
         **resources_of("light"),
-    conda:
-        "../envs/ocpipe.yaml"
+    params:
+        pairs=config["features"]["attention_pairs"],
     script:
         "../scripts/attention_maps.py"

@@ -9,37 +9,40 @@ rule frames_shard:
     output:
         store=temp(directory("results/frames/shards/{task}_{cams}_{res}/shard{shard}.zarr")),
         stats="results/frames/shards/{task}_{cams}_{res}/shard{shard}.json",
-    params:
-        cfg=cfg("sim", "frames", "cameras", "camera_approx"),
     log:
         "results/logs/frames_shard/{task}_{cams}_{res}_shard{shard}.log",
     benchmark:
         "results/benchmarks/frames_shard/{task}_{cams}_{res}_shard{shard}.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("frames")
     resources:
         **resources_of("frames"),
-    conda:
-        "../envs/ocpipe.yaml"
+    params:
+        cfg=cfg("sim", "frames", "cameras", "camera_approx"),
     script:
         "../scripts/frames_shard.py"
 
 
 rule frames_merge:
     input:
-        stores=expand("results/frames/shards/{{task}}_{{cams}}_{{res}}/shard{shard}.zarr", shard=range(config["frames"]["shards"])),
+        stores=expand(
+            "results/frames/shards/{{task}}_{{cams}}_{{res}}/shard{shard}.zarr",
+            shard=range(config["frames"]["shards"]),
+        ),
     output:
         store=directory("results/frames/{task}_{cams}_{res}.zarr"),
-    params:
-        chunk_frames=config["frames"]["chunk_frames"],
     log:
         "results/logs/frames_merge/{task}_{cams}_{res}.log",
     benchmark:
         "results/benchmarks/frames_merge/{task}_{cams}_{res}.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("light")
     resources:
         **resources_of("light"),
-    conda:
-        "../envs/ocpipe.yaml"
+    params:
+        chunk_frames=config["frames"]["chunk_frames"],
     script:
         "../scripts/frames_merge.py"
 
@@ -47,20 +50,23 @@ rule frames_merge:
 rule frames_report:
     input:
         store="results/frames/{task}_{cams}_{res}.zarr",
-        stats=expand("results/frames/shards/{{task}}_{{cams}}_{{res}}/shard{shard}.json", shard=range(config["frames"]["shards"])),
+        stats=expand(
+            "results/frames/shards/{{task}}_{{cams}}_{{res}}/shard{shard}.json",
+            shard=range(config["frames"]["shards"]),
+        ),
     output:
         json="results/frames/{task}_{cams}_{res}.report.json",
         png="results/frames/{task}_{cams}_{res}.contact.png",
-    params:
-        report=config["report"],
     log:
         "results/logs/frames_report/{task}_{cams}_{res}.log",
     benchmark:
         "results/benchmarks/frames_report/{task}_{cams}_{res}.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("light")
     resources:
         **resources_of("light"),
-    conda:
-        "../envs/ocpipe.yaml"
+    params:
+        report=config["report"],
     script:
         "../scripts/frames_report.py"

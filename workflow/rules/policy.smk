@@ -13,17 +13,17 @@ rule train:
     output:
         checkpoints=directory("results/runs/{exp}/checkpoints"),
         log="results/runs/{exp}/train_log.parquet",
-    params:
-        policy=policy_of,
-        seed=config["seed"],
     log:
         "results/logs/train/{exp}.log",
     benchmark:
         "results/benchmarks/train/{exp}.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
     threads: threads_of("train")
     resources:
         **resources_of("train"),
-    conda:
-        "../envs/ocpipe.yaml"
+    params:
+        policy=policy_of,
+        seed=config["seed"],
     script:
         "../scripts/train.py"

@@ -52,6 +52,9 @@ def crop_labels(seg: np.ndarray, windows: np.ndarray, grid: int) -> np.ndarray:
     """Per-pixel ids (B, C, H, W) -> (B, C, grid, grid) by nearest sampling at the grid cells' centres."""
     out = []
     for c, (x0, y0, size) in enumerate(windows):
-        idx = (x0 + (np.arange(grid) + 0.5) * size / grid).astype(int), (y0 + (np.arange(grid) + 0.5) * size / grid).astype(int)
+        idx = (
+            (x0 + (np.arange(grid) + 0.5) * size / grid).astype(int),
+            (y0 + (np.arange(grid) + 0.5) * size / grid).astype(int),
+        )
         out.append(seg[:, c][:, idx[1]][:, :, idx[0]])
     return np.stack(out, axis=1)

@@ -20,7 +20,9 @@ class FrozenSSLSlots:
             p.requires_grad_(False)
         # windows come from this store's own camera matrices, so a camera set the encoder never saw still crops
         # the same world box
-        self.windows = crop.crop_windows(intrinsics, extrinsics, resolution, ckpt["workspace_min"], ckpt["workspace_max"])
+        self.windows = crop.crop_windows(
+            intrinsics, extrinsics, resolution, ckpt["workspace_min"], ckpt["workspace_max"]
+        )
         self.extra_attrs = {"crop_windows": self.windows.tolist(), "mask_grid": self.model.cfg.grid}
 
     def encode(self, rgb: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -20,10 +20,8 @@ import math
 import time
 from dataclasses import asdict, dataclass
 
-import numpy as np
 import torch
 import torch.nn as nn
-import torch.nn.functional as F
 from tqdm import tqdm
 
 from .slot_attention import SlotAttention
@@ -147,9 +145,16 @@ def train(images_u8: torch.Tensor, cfg: SSLSlotsConfig, threads: int = 1, progre
         opt.step()
         sched.step()
         if step % 10 == 0 or step == cfg.steps - 1:
-            curve.append({"step": step, "loss": loss.item(), "mixed_recon": recon_loss.item(), "mask_entropy": entropy.item(),
-                          "lr": sched.get_last_lr()[0],
-                          "seconds": time.perf_counter() - t0})
+            curve.append(
+                {
+                    "step": step,
+                    "loss": loss.item(),
+                    "mixed_recon": recon_loss.item(),
+                    "mask_entropy": entropy.item(),
+                    "lr": sched.get_last_lr()[0],
+                    "seconds": time.perf_counter() - t0,
+                }
+            )
             bar.set_postfix(loss=f"{loss.item():.4f}", H=f"{entropy.item():.2f}")
     model.eval()
     return model.cpu(), curve, weights.cpu()

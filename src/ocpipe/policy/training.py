@@ -77,7 +77,9 @@ def load_data(policy: dict, features_path, frames_path):
     check_provenance(feats, features_path, frames, frames_path)
     tokens = PolicyTokens(feats, policy.get("slot_geometry", False), str(features_path))
     if tokens.shape[0] != frames["qpos"].shape[0]:
-        raise ValueError(f"{features_path} has {tokens.shape[0]} frames but {frames_path} has {frames['qpos'].shape[0]}")
+        raise ValueError(
+            f"{features_path} has {tokens.shape[0]} frames but {frames_path} has {frames['qpos'].shape[0]}"
+        )
     if max(policy["cameras"]) >= tokens.shape[1]:
         raise ValueError(f"policy.cameras {policy['cameras']}: {features_path} has {tokens.shape[1]} cameras")
     offsets = frames.attrs["episode_offsets"]
@@ -87,8 +89,11 @@ def load_data(policy: dict, features_path, frames_path):
     extra = {}
     if policy.get("joint_targets", "absolute") == "residual":
         bounds = Labels.from_offsets(offsets, qpos, qpos, action)
-        stats.update(normalization.residual_stats(action, qpos, train_frames,
-                                                  action_frames(train_frames, bounds, policy["horizon"])))
+        stats.update(
+            normalization.residual_stats(
+                action, qpos, train_frames, action_frames(train_frames, bounds, policy["horizon"])
+            )
+        )
         extra["residual"] = (normalization.residual_base(qpos), stats["action_mean"], stats["action_std"])
         model_action = action
     else:
@@ -99,12 +104,19 @@ def load_data(policy: dict, features_path, frames_path):
         extra["aux"] = ((obj - stats["aux_mean"]) / stats["aux_std"]).astype(np.float32)
     if policy.get("token_norm", "none") == "zscore":
         stats["token_mean"], stats["token_std"] = token_stats(tokens, train_frames)
-    labels = Labels.from_offsets(offsets, normalization.proprio(qpos, stats), goal_array(frames, policy),
-                                 model_action, **extra)
-    meta = {"K": int(tokens.shape[2]), "D": int(tokens.shape[3]), "features_store": str(features_path),
-            "frames_store": str(frames_path), "encoder": feats.attrs.get("encoder"),
-            "encoder_checkpoint_sha256": feats.attrs.get("checkpoint_sha256"),
-            "cameras": [frames.attrs["cameras"][c] for c in policy["cameras"]], "tokens_dtype": str(tokens.dtype)}
+    labels = Labels.from_offsets(
+        offsets, normalization.proprio(qpos, stats), goal_array(frames, policy), model_action, **extra
+    )
+    meta = {
+        "K": int(tokens.shape[2]),
+        "D": int(tokens.shape[3]),
+        "features_store": str(features_path),
+        "frames_store": str(frames_path),
+        "encoder": feats.attrs.get("encoder"),
+        "encoder_checkpoint_sha256": feats.attrs.get("checkpoint_sha256"),
+        "cameras": [frames.attrs["cameras"][c] for c in policy["cameras"]],
+        "tokens_dtype": str(tokens.dtype),
+    }
     return tokens, labels, stats, meta, (train_frames, val_frames)
 
 
@@ -127,8 +139,16 @@ def _save(obj: dict, path: Path) -> None:
         torch.save(obj, tmp)
 
 
-def train(policy: dict, seed: int, features_path, frames_path, out_dir, threads: int = 1, progress: bool = True,
-          on_epoch_end=None) -> pl.DataFrame:
+def train(
+    policy: dict,
+    seed: int,
+    features_path,
+    frames_path,
+    out_dir,
+    threads: int = 1,
+    progress: bool = True,
+    on_epoch_end=None,
+) -> pl.DataFrame:
     from ..experiments import saved_epochs
 
     torch.set_num_threads(threads)
@@ -156,10 +176,23 @@ def train(policy: dict, seed: int, features_path, frames_path, out_dir, threads:
             shutil.rmtree(work)
     work.mkdir(parents=True, exist_ok=True)
 
-    loader = ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], policy["batch_size"],
-                               policy["cameras"], seed, frames=train_frames)
-    val_loader = ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], 256, policy["cameras"], seed,
-                                   frames=val_frames) if len(val_frames) else None
+    loader = ChunkWindowLoader(
+        tokens,
+        labels,
+        policy["window"],
+        policy["horizon"],
+        policy["batch_size"],
+        policy["cameras"],
+        seed,
+        frames=train_frames,
+    )
+    val_loader = (
+        ChunkWindowLoader(
+            tokens, labels, policy["window"], policy["horizon"], 256, policy["cameras"], seed, frames=val_frames
+        )
+        if len(val_frames)
+        else None
+    )
     aux_weight = policy.get("aux_object_weight", 0.0)
     proprio_noise = policy.get("proprio_noise", 0.0)
     keep = set(saved_epochs(policy))
@@ -169,8 +202,13 @@ def train(policy: dict, seed: int, features_path, frames_path, out_dir, threads:
         t0 = time.perf_counter()
         sums = {"loss": 0.0, "loss_joints": 0.0, "loss_gripper": 0.0, "loss_aux": 0.0}
         n = 0
-        bar = tqdm(loader.epoch(epoch), total=len(loader), disable=not progress, unit="batch",
-                   desc=f"{policy.get('name', 'policy')} epoch {epoch + 1}/{policy['epochs']}")
+        bar = tqdm(
+            loader.epoch(epoch),
+            total=len(loader),
+            disable=not progress,
+            unit="batch",
+            desc=f"{policy.get('name', 'policy')} epoch {epoch + 1}/{policy['epochs']}",
+        )
         for batch in bar:
             batch = {k: v.to(device) for k, v in batch.items()}
             if proprio_noise > 0:  # blur the joint history so the policy cannot act on it alone (copycat)
@@ -190,13 +228,26 @@ def train(policy: dict, seed: int, features_path, frames_path, out_dir, threads:
                 sums[k] += float(terms[k].detach()) * b
             n += b
             bar.set_postfix(loss=f"{sums['loss'] / n:.4f}")
-        row = {"epoch": epoch + 1, **{k: v / n for k, v in sums.items()}, "lr": policy["lr"],
-               "seconds": time.perf_counter() - t0,
-               **(openloop_error(model, val_loader, labels, stats, policy, device) if val_loader else {})}
+        row = {
+            "epoch": epoch + 1,
+            **{k: v / n for k, v in sums.items()},
+            "lr": policy["lr"],
+            "seconds": time.perf_counter() - t0,
+            **(openloop_error(model, val_loader, labels, stats, policy, device) if val_loader else {}),
+        }
         history.append(row)
         log.info("epoch %d: %s", epoch + 1, row)
-        state = {"model": model.state_dict(), "optimizer": opt.state_dict(), "policy": policy, "seed": seed,
-                 "norm": stats, "meta": meta, "epoch": epoch + 1, "history": history, "fingerprint": fingerprint}
+        state = {
+            "model": model.state_dict(),
+            "optimizer": opt.state_dict(),
+            "policy": policy,
+            "seed": seed,
+            "norm": stats,
+            "meta": meta,
+            "epoch": epoch + 1,
+            "history": history,
+            "fingerprint": fingerprint,
+        }
         if epoch + 1 in keep:
             _save(state, work / f"epoch_{epoch + 1:04d}.pt")
         _save(state, state_path)
@@ -235,7 +286,11 @@ def openloop_error(model, loader: ChunkWindowLoader, labels: Labels, stats: dict
         grip_ok += float((np.sign(got[..., 7]) == np.sign(want[..., 7])).mean(axis=1).sum())
         n += len(frames)
     model.train()
-    return {"val_joint_err_rad": joint_err / n, "val_first_joint_err_rad": first_err / n, "val_gripper_agree": grip_ok / n}
+    return {
+        "val_joint_err_rad": joint_err / n,
+        "val_first_joint_err_rad": first_err / n,
+        "val_gripper_agree": grip_ok / n,
+    }
 
 
 def load_policy(path, device: str | torch.device = "cpu"):

@@ -34,7 +34,9 @@ class Labels:
         offsets = np.asarray(offsets, dtype=np.int64)
         lengths = np.diff(offsets)
         if (lengths <= 0).any():
-            raise ValueError(f"episode {int(np.argmax(lengths <= 0))} has no frames (episode_offsets {offsets.tolist()})")
+            raise ValueError(
+                f"episode {int(np.argmax(lengths <= 0))} has no frames (episode_offsets {offsets.tolist()})"
+            )
         return cls(proprio, goal, action, np.repeat(offsets[:-1], lengths), np.repeat(offsets[1:], lengths), **extra)
 
     def targets(self, frames: np.ndarray, act: np.ndarray) -> np.ndarray:
@@ -62,8 +64,9 @@ def progress(target_frames: np.ndarray, frames: np.ndarray, labels: Labels) -> n
     return ((target_frames - s) / np.maximum(e - 1 - s, 1)).astype(np.float32)
 
 
-def make_batch(tokens: np.ndarray, base: int, frames: np.ndarray, labels: Labels, T: int, H: int,
-               cameras: list[int]) -> dict[str, torch.Tensor]:
+def make_batch(
+    tokens: np.ndarray, base: int, frames: np.ndarray, labels: Labels, T: int, H: int, cameras: list[int]
+) -> dict[str, torch.Tensor]:
     """Assemble samples for ``frames``; ``tokens`` holds store frames base .. base+len(tokens)."""
     win = window_frames(frames, labels, T)
     act = action_frames(frames, labels, H)
@@ -86,8 +89,18 @@ class ChunkWindowLoader:
     ``tokens`` is a Zarr array (or anything sliceable) of shape (N, C, K, D); ``frames`` the current-frame ids
     to train on (default: all). Batches do not straddle chunks, so a chunk's last batch may be smaller."""
 
-    def __init__(self, tokens, labels: Labels, T: int, H: int, batch_size: int, cameras: list[int],
-                 seed: int, frames: np.ndarray | None = None, chunk_frames: int | None = None):
+    def __init__(
+        self,
+        tokens,
+        labels: Labels,
+        T: int,
+        H: int,
+        batch_size: int,
+        cameras: list[int],
+        seed: int,
+        frames: np.ndarray | None = None,
+        chunk_frames: int | None = None,
+    ):
         self.tokens, self.labels, self.T, self.H = tokens, labels, T, H
         self.batch_size, self.cameras, self.seed = batch_size, list(cameras), seed
         n = tokens.shape[0]
@@ -118,8 +131,9 @@ class ChunkWindowLoader:
             try:
                 order = rng.permutation(frames)
                 for b in range(0, len(order), self.batch_size):
-                    yield make_batch(block, base, order[b : b + self.batch_size], self.labels, self.T, self.H,
-                                     self.cameras)
+                    yield make_batch(
+                        block, base, order[b : b + self.batch_size], self.labels, self.T, self.H, self.cameras
+                    )
             finally:
                 del block
                 self.chunks_in_ram -= 1
