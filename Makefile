@@ -10,7 +10,7 @@ setup:
 	bash bin/setup.sh
 
 main: setup
-	$(SNAKEMAKE) --cores $(CORES) $(MAIN_TARGET)
+	$(SNAKEMAKE) --cores $(CORES) --rerun-incomplete $(MAIN_TARGET)
 	.venv/bin/ocpipe summary results
 
 test: setup lint
