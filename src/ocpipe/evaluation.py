@@ -145,7 +145,6 @@ class ClosedLoop:
         window: deque = deque(maxlen=T)
         steps: dict[str, list] = {k: [] for k in ("step", "action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos",
                                                    "reward")}
-        queue: list[np.ndarray] = []
         chunks: deque = deque(maxlen=-(-self.policy["horizon"] // self.execute))  # (query step, (H, 8) actions)
         success, total = False, 0.0
         for t in range(self.cap):
@@ -153,14 +152,16 @@ class ClosedLoop:
             window.append((tokens, proprio, goal))
             while len(window) < T:
                 window.appendleft(window[0])
-            if (not queue) if not self.ensemble else (t % self.execute == 0):
+            if t % self.execute == 0:  # execute <= H: a chunk always covers the steps until the next query
                 batch = [torch.stack([torch.as_tensor(w[i]) for w in window])[None].to(self.device) for i in range(3)]
                 pred = self.model(*batch)[0].cpu().numpy()
                 qpos = labels["qpos"][:7] if self.residual else None
-                chunk = normalization.action_from_model(pred, self.stats, qpos=qpos)
-                queue = list(chunk[: self.execute])
-                chunks.append((t, chunk))
-            action = ensemble_action(chunks, t, self.ensemble) if self.ensemble else queue.pop(0)
+                chunks.append((t, normalization.action_from_model(pred, self.stats, qpos=qpos)))
+            if self.ensemble:
+                action = ensemble_action(chunks, t, self.ensemble)
+            else:
+                t0, chunk = chunks[-1]
+                action = chunk[t - t0]
             obs, reward, _, _, info = self.env.step(torch.as_tensor(action[None]))
             reward = float(reward[0])
             total += reward

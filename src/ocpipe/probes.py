@@ -9,7 +9,6 @@ about a centimetre; a probe that cannot beat the mean by much says the encoder, 
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 TARGETS = ("obj_pos", "goal_pos", "tcp_pos")
 
@@ -43,6 +42,8 @@ def ridge(x_train: np.ndarray, y_train: np.ndarray, x_test: np.ndarray, alpha: f
 def mlp(x_train: np.ndarray, y_train: np.ndarray, x_test: np.ndarray, seed: int, hidden: int = 256,
         epochs: int = 150, batch: int = 256, lr: float = 1e-3) -> np.ndarray:
     """A 2-hidden-layer MLP on standardized inputs and outputs (Adam, cosine schedule, seeded)."""
+    import torch  # here, not at the top: `ocpipe summary` reads probes.TARGETS without loading torch
+
     gen = torch.Generator().manual_seed(seed)
     torch.manual_seed(seed)
     xs = torch.as_tensor(_standardize(x_train, np.concatenate([x_train, x_test])), dtype=torch.float32)

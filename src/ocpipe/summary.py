@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from . import probes
+
 
 def _fmt(x, spec=".3f"):
     return "n/a" if x is None else format(x, spec)
@@ -51,7 +53,7 @@ def summary_lines(results: str | Path) -> list[str]:
             reads = "; ".join(
                 f"{name.removesuffix('_pos')} "
                 + ", ".join(f"{kind} {v['median_cm']:.1f}" for kind, v in p[name].items())
-                for name in ("obj_pos", "goal_pos", "tcp_pos")
+                for name in probes.TARGETS
                 if name in p
             )
             lines.append(f"          position probes, median cm on {p['test_episodes']} held-out episodes: {reads}")

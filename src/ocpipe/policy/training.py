@@ -37,14 +37,18 @@ from .windows import ChunkWindowLoader, Labels, action_frames
 log = logging.getLogger(__name__)
 
 
+def goal_source(policy: dict) -> str | None:
+    """The frames-store array a policy's goal input comes from (None: no goal input)."""
+    return {"none": None, "3d": "goal_pos"}.get(policy["goal"], f"goal2d_{policy.get('goal_calibration')}")
+
+
 def goal_array(frames, policy: dict) -> np.ndarray:
-    if policy["goal"] == "none":
+    source = goal_source(policy)
+    if source is None:
         return np.zeros((frames["qpos"].shape[0], 0), dtype=np.float32)
-    if policy["goal"] == "3d":
-        return frames["goal_pos"][:].astype(np.float32)
-    goal = frames[f"goal2d_{policy['goal_calibration']}"][:].astype(np.float32)
-    if not np.isfinite(goal).all():
-        raise ValueError(f"goal2d_{policy['goal_calibration']} has NaN in {frames.store}: the camera set "
+    goal = frames[source][:].astype(np.float32)
+    if policy["goal"] == "2d" and not np.isfinite(goal).all():
+        raise ValueError(f"{source} has NaN in {frames.store}: the camera set "
                          f"{policy['cams']!r} has no {policy['goal_calibration']} 2d goal (policy.goal_calibration)")
     return goal
 
@@ -71,7 +75,7 @@ def token_stats(tokens, frames: np.ndarray, max_frames: int = 20000) -> tuple[np
 
 def load_data(policy: dict, features_path, frames_path):
     """-> (tokens array, Labels, normalization stats computed from the training frames, meta, (train, val) frames)."""
-    goal = {"none": (), "3d": ("goal_pos",)}.get(policy["goal"], (f"goal2d_{policy.get('goal_calibration')}",))
+    goal = (goal_source(policy),) if policy["goal"] != "none" else ()
     aux = ("obj_pos",) if policy.get("aux_object_weight", 0) > 0 else ()
     feats, frames = open_features(features_path), open_store(frames_path, need=("qpos", "action", *goal, *aux))
     check_provenance(feats, features_path, frames, frames_path)
