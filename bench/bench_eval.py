@@ -69,7 +69,7 @@ def worker(mode: str, setting: dict, checkpoint: str, steps: int) -> dict:
                 torch.as_tensor(x)[None, None].repeat(1, loop.policy["window"], *([1] * torch.as_tensor(x).dim()))
                 for x in (tokens, proprio, goal)
             ]
-            loop.model(*seq)
+            loop.model(*seq, torch.as_tensor(tokens)[None])
             loop.env.step(hold)
 
         return _timed(step, steps)

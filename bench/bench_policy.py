@@ -91,7 +91,7 @@ def seconds_per_epoch(policy, features, frames, max_batches, threads):
     n, t0 = 0, time.perf_counter()
     for _, batch in enumerate(loader.epoch(0)):
         loss = loss_terms(
-            model(batch["tokens"], batch["proprio"], batch["goal"]),
+            model(batch["tokens"], batch["proprio"], batch["goal"], batch.get("first")),
             batch["action"],
             loss_weights("uniform", batch["progress"]),
             False,

@@ -29,6 +29,7 @@ def write_stores(root: Path, lengths=(30, 25, 40), C=2, K=7, D=16, chunk=32, see
         "obj_quat": quat / np.linalg.norm(quat, axis=1)[:, None],
         "goal2d_exact": rng.uniform(0, 1, (N, 4)),
         "goal2d_approx": rng.uniform(0, 1, (N, 4)),
+        "tcp_pos": np.random.default_rng(seed + 1).uniform(-0.1, 0.3, (N, 3)),  # own stream: other arrays unchanged
     }.items():
         _put(frames, name, arr.astype(np.float32))
     frames.attrs.update({"episode_offsets": offsets, "cameras": ["base", "side"][:C], "task": "PickCube-v1"})
@@ -73,6 +74,8 @@ def policy_settings(**overrides) -> dict:
         aux_object_weight=0.0,
         proprio_noise=0.0,
         joint_targets="absolute",
+        lr_schedule="constant",
+        first_frame=False,
         val_episodes=0,
         name="test",
     )

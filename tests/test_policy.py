@@ -7,8 +7,8 @@ import torch
 from policy_stores import policy_settings, write_stores
 
 from ocpipe.policy import normalization
-from ocpipe.policy.model import SequencePolicy, loss_terms
-from ocpipe.policy.training import load_policy, train
+from ocpipe.policy.model import PROPRIO_DIMS, SequencePolicy, loss_terms
+from ocpipe.policy.training import learning_rate, load_data, load_policy, train
 from ocpipe.policy.weighting import loss_weights
 from ocpipe.policy.windows import ChunkWindowLoader, Labels, action_frames, progress, window_frames
 
@@ -16,7 +16,7 @@ from ocpipe.policy.windows import ChunkWindowLoader, Labels, action_frames, prog
 def inputs(policy, B=3, K=7, D=16, seed=0):
     g = torch.Generator().manual_seed(seed)
     T, C = policy["window"], len(policy["cameras"])
-    P = 7 if policy["proprio"] == "joints7" else 9
+    P = PROPRIO_DIMS[policy["proprio"]]
     G = {"none": 0, "2d": 4, "3d": 3}[policy["goal"]]
     return (torch.randn(B, T, C, K, D, generator=g), torch.randn(B, T, P, generator=g),
             torch.randn(B, T, G, generator=g))
@@ -76,7 +76,7 @@ def test_gripper_is_a_hard_step_and_joints_are_denormalized():
     np.testing.assert_allclose(out[:, 0], 2.0)
     np.testing.assert_allclose(out[:, 1:7], np.tile(np.arange(1, 7) * 0.1, (3, 1)), rtol=1e-6)
     raw = np.array([[0.1] * 7 + [1.0], [0.3] * 7 + [-1.0]], np.float32)
-    stats = normalization.compute(np.zeros((2, 9)), raw, "joints7")
+    stats = normalization.compute(np.zeros((2, 7)), raw, "joints7")
     assert stats["action_mean"][7] == 0 and stats["action_std"][7] == 1  # gripper untouched
     np.testing.assert_allclose(normalization.action_to_model(raw, stats)[:, 7], [1.0, -1.0])
 
@@ -104,6 +104,65 @@ def test_global_9dof_normalization_squashes_the_fingers_and_grouped_restores_the
     })[:, 7:].std(0)
     assert spread("qpos9_global").max() < 0.01  # fingers nearly constant: the thesis' pathology
     np.testing.assert_allclose(spread("qpos9_grouped"), 1.0, atol=0.01)
+
+
+def test_joints7_tcp_appends_the_tcp_and_zscores_every_dimension():
+    rng = np.random.default_rng(0)
+    qpos, tcp = rng.normal(0, 0.5, (500, 9)), rng.normal([0, 0, 0.2], 0.05, (500, 3))
+    x = normalization.proprio_input(qpos, tcp, "joints7_tcp")
+    np.testing.assert_array_equal(x, np.concatenate([qpos[:, :7], tcp], 1))
+    stats = normalization.compute(x, np.zeros((1, 8)), "joints7_tcp")
+    z = normalization.proprio(x, stats)
+    np.testing.assert_allclose(z.mean(0), 0, atol=1e-5)
+    np.testing.assert_allclose(z.std(0), 1, atol=1e-4)
+    assert normalization.proprio_input(qpos, None, "joints7").shape == (500, 7)
+    with pytest.raises(ValueError, match="tcp_pos"):
+        normalization.proprio_input(qpos, None, "joints7_tcp")
+    with pytest.raises(ValueError, match="policy.proprio"):
+        normalization.proprio_stats(x, "joints8")
+
+
+def test_a_joints7_tcp_policy_trains_on_the_stores_tcp_and_keeps_its_stats(tmp_path):
+    features, frames = write_stores(tmp_path)
+    train(policy_settings(proprio="joints7_tcp", epochs=1, save_every=1), 0, features, frames, tmp_path / "run",
+          progress=False)
+    model, stats, policy, _ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0001.pt")
+    assert policy["proprio"] == "joints7_tcp" and stats["proprio_mean"].shape == (10,)
+    assert model.proprio[0].in_features == 10
+
+
+def test_cosine_schedule_decays_from_lr_to_zero_and_constant_stays():
+    cosine = policy_settings(lr=0.002, lr_schedule="cosine")
+    assert learning_rate(cosine, 0, 100) == pytest.approx(0.002)
+    assert learning_rate(cosine, 50, 100) == pytest.approx(0.001)
+    assert learning_rate(cosine, 99, 100) < 1e-6
+    assert learning_rate(policy_settings(lr=0.002), 99, 100) == 0.002
+
+
+def test_a_cosine_run_logs_its_decaying_learning_rate(tmp_path):
+    features, frames = write_stores(tmp_path)
+    log = train(policy_settings(lr_schedule="cosine", epochs=3, save_every=3), 0, features, frames, tmp_path / "run",
+                progress=False)
+    lrs = log["lr"].to_list()
+    assert lrs[0] > lrs[1] > lrs[2] and lrs[2] < 0.05 * policy_settings()["lr"]
+
+
+def test_first_frame_policy_sees_the_episode_start_at_every_step(tmp_path):
+    features, frames = write_stores(tmp_path)
+    policy = policy_settings(first_frame=True, val_episodes=1)
+    tokens, labels, *_ = load_data(policy, features, frames)
+    loader = ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], 8, policy["cameras"], 0)
+    batch = next(loader.epoch(0))
+    starts = labels.start[batch["frame"].numpy()]
+    want = np.stack([np.asarray(tokens[s : s + 1], np.float32)[0] for s in starts])[:, policy["cameras"]]
+    np.testing.assert_array_equal(batch["first"].numpy(), want)
+    torch.manual_seed(0)
+    model = SequencePolicy(policy, 7, 16).eval()
+    out = model(batch["tokens"], batch["proprio"], batch["goal"], batch["first"])
+    assert out.shape == (len(starts), policy["horizon"], 8)
+    assert not torch.allclose(out, model(batch["tokens"], batch["proprio"], batch["goal"], batch["first"] + 1.0))
+    with pytest.raises(ValueError, match="first_frame"):
+        model(batch["tokens"], batch["proprio"], batch["goal"])
 
 
 def test_windows_pad_at_episode_edges():

@@ -1,5 +1,5 @@
 """The privileged-state control sees the same tokens in training (frames store, from replay) and in evaluation
-(read from the simulator, nothing rendered), on a real episode."""
+(read from the simulator, nothing rendered), on a real episode; so does a joints7_tcp policy its TCP input."""
 
 import h5py
 import numpy as np
@@ -32,13 +32,14 @@ def test_training_and_evaluation_tokens_agree_on_a_replayed_episode(tmp_path, de
     env = sim.make_env("PickCube-v1", default_config, None)
     env.reset(seed=seed)
     rng = np.random.default_rng(0)
-    states, actions, eval_tokens = {}, [], []
+    states, actions, eval_tokens, eval_tcp = {}, [], [], []
     for t in range(steps + 1):
         _stack(states, env.unwrapped.get_state_dict())
         r = sim.task_readouts(env)
         if t == steps:
             break
         eval_tokens.append(state_tokens(r["obj_pos"], r["obj_quat"]))
+        eval_tcp.append(r["tcp_pos"])  # what a joints7_tcp policy reads in evaluation
         action = np.concatenate([r["qpos"][:7] + rng.normal(0, 0.05, 7), [1.0 if t > 6 else -1.0]]).astype(np.float32)
         actions.append(action)
         env.step(torch.as_tensor(action[None]))
@@ -59,3 +60,4 @@ def test_training_and_evaluation_tokens_agree_on_a_replayed_episode(tmp_path, de
     train_tokens = state_tokens(ep.arrays["obj_pos"], ep.arrays["obj_quat"])
     assert train_tokens.shape == (steps, 1, 1, 5)
     np.testing.assert_allclose(train_tokens, np.stack(eval_tokens), atol=1e-5)
+    np.testing.assert_allclose(ep.arrays["tcp_pos"], np.stack(eval_tcp), atol=1e-5)

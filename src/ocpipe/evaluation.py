@@ -135,7 +135,8 @@ class ClosedLoop:
     def _observe(self, obs) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:
         labels = sim.task_readouts(self.env)
         tokens = self._tokens(obs, labels)
-        proprio = normalization.proprio(labels["qpos"][None], self.stats)[0]
+        x = normalization.proprio_input(labels["qpos"], labels["tcp_pos"], self.policy["proprio"])
+        proprio = normalization.proprio(x[None], self.stats)[0]
         return tokens, proprio, self._goal(obs, labels["goal_pos"]), labels
 
     @torch.inference_mode()
@@ -149,12 +150,14 @@ class ClosedLoop:
         success, total = False, 0.0
         for t in range(self.cap):
             tokens, proprio, goal, labels = self._observe(obs)
+            if t == 0:
+                first = tokens[None].to(self.device)  # the episode's first frame, for first_frame policies
             window.append((tokens, proprio, goal))
             while len(window) < T:
                 window.appendleft(window[0])
             if t % self.execute == 0:  # execute <= H: a chunk always covers the steps until the next query
                 batch = [torch.stack([torch.as_tensor(w[i]) for w in window])[None].to(self.device) for i in range(3)]
-                pred = self.model(*batch)[0].cpu().numpy()
+                pred = self.model(*batch, first)[0].cpu().numpy()
                 qpos = labels["qpos"][:7] if self.residual else None
                 chunks.append((t, normalization.action_from_model(pred, self.stats, qpos=qpos)))
             if self.ensemble:

@@ -1,5 +1,7 @@
-# Helpers shared by the rule files: target lists, wildcard constraints and config slices passed as params
-# (so a change in one config section reruns exactly the jobs that read it).
+# What the stage files share: wildcard constraints, config slices passed as params (so a change in one config
+# section reruns exactly the jobs that read it), target lists and every input function.
+from ocpipe import experiments as _exp
+from ocpipe import study
 
 
 wildcard_constraints:
@@ -64,13 +66,54 @@ def features_targets(encoders=("slots_ssl",)):
 
 def experiment_encoding_targets():
     """Frames and features stores (with diagnostics and attention maps) of every experiment a table can run."""
-    from ocpipe import experiments, study
-
     out = []
     for exp in study.experiments_of(config):
-        p = experiments.resolve(config, exp)
-        store = experiments.frames_store(p)
+        p = _exp.resolve(config, exp)
+        store = _exp.frames_store(p)
         for f in [f"results/frames/{store}.report.json", *_features_outputs(store, p["encoder"])]:
             if f not in out:
                 out.append(f)
     return out
+
+
+def encoder_checkpoint(encoder):
+    """The checkpoint file a features job depends on (a workflow output, or a user-given weight file)."""
+    if encoder == "slots_ssl":
+        return "results/encoders/slots_ssl/model.pt"
+    if encoder == "state":  # the privileged-state control reads poses from the frames store
+        return []
+    spot, dino = config["encoders"]["spot"], config["encoders"]["dino"]
+    if encoder == "spot":
+        if spot["checkpoint"]:
+            return spot["checkpoint"]
+        return "results/encoders/spot/slot_module.pt" if spot["dino_checkpoint"] else []
+    return dino["checkpoint"] or []  # a missing weight file fails the job with a message naming the key
+
+
+def policy_of(w):
+    """The resolved policy settings of the job's experiment."""
+    return _exp.resolve(config, w.exp)
+
+
+def eval_inputs(w):
+    p = policy_of(w)
+    return {
+        "checkpoints": f"results/runs/{w.exp}/checkpoints",
+        "frames": f"results/frames/{_exp.frames_store(p)}.zarr",
+        "encoder": encoder_checkpoint(p["encoder"]),
+    }
+
+
+def sweep_outputs(exp):
+    return study.artefacts(config, exp, "sweep")
+
+
+def stability_outputs(exp):
+    return study.artefacts(config, exp, "stability")
+
+
+def failure_inputs(exp):
+    """Episodes the taxonomy classifies: a dedicated run, or (failure_episodes: 0) the stability runs."""
+    if config["evaluation"]["failure_episodes"]:
+        return [f"results/runs/{exp}/failure_run.episodes.parquet"]
+    return stability_outputs(exp)

@@ -1,8 +1,6 @@
 # Closed-loop evaluation (docs/study.md, Evaluation protocol): a sweep job per (experiment, checkpoint), the best
 # checkpoint, stability runs (one job each), training-seed runs, failure classification (docs/study.md, Failure
 # taxonomy), and the study's tables and figures (docs/study.md, Tables and figures).
-from types import SimpleNamespace
-
 from ocpipe import study
 
 
@@ -26,30 +24,6 @@ EVAL_PARAMS = {
     "cfg": cfg("sim", "cameras", "camera_approx", "frames", "encoders"),
     "seed": config["seed"],
 }
-
-
-def eval_inputs(w):
-    p = policy_of(w)
-    return {
-        "checkpoints": f"results/runs/{w.exp}/checkpoints",
-        "frames": f"results/frames/{_exp.frames_store(p)}.zarr",
-        "encoder": encoder_checkpoint(SimpleNamespace(encoder=p["encoder"])),
-    }
-
-
-def sweep_outputs(exp):
-    return study.artefacts(config, exp, "sweep")
-
-
-def stability_outputs(exp):
-    return study.artefacts(config, exp, "stability")
-
-
-def failure_inputs(exp):
-    """Episodes the taxonomy classifies: a dedicated run, or (failure_episodes: 0) the stability runs."""
-    if config["evaluation"]["failure_episodes"]:
-        return [f"results/runs/{exp}/failure_run.episodes.parquet"]
-    return stability_outputs(exp)
 
 
 rule sweep:

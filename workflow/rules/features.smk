@@ -2,24 +2,10 @@
 # with slot diagnostics, decomposition scores against simulator segmentation, and attention-map figures.
 
 
-def encoder_checkpoint(w):
-    """The checkpoint file a features job depends on (a workflow output, or a user-given weight file)."""
-    if w.encoder == "slots_ssl":
-        return "results/encoders/slots_ssl/model.pt"
-    if w.encoder == "state":  # the privileged-state control reads poses from the frames store
-        return []
-    spot, dino = config["encoders"]["spot"], config["encoders"]["dino"]
-    if w.encoder == "spot":
-        if spot["checkpoint"]:
-            return spot["checkpoint"]
-        return "results/encoders/spot/slot_module.pt" if spot["dino_checkpoint"] else []
-    return dino["checkpoint"] or []  # a missing weight file fails the job with a message naming the key
-
-
 rule features:
     input:
         frames="results/frames/{task}_{cams}_{res}.zarr",
-        ckpt=encoder_checkpoint,
+        ckpt=lambda w: encoder_checkpoint(w.encoder),
     output:
         store=directory("results/features/{task}_{cams}_{res}_{encoder}.zarr"),
     log:

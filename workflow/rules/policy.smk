@@ -1,9 +1,4 @@
 # Policy training: one job per named experiment (config `experiments`, overrides of `policy`).
-from ocpipe import experiments as _exp
-
-
-def policy_of(w):
-    return _exp.resolve(config, w.exp)
 
 
 rule train:

@@ -10,7 +10,9 @@ Departures from the study, each off in config/thesis.yaml: `token_norm: zscore` 
 dimension with training-set statistics held in the model (the frozen encoders' dimensions differ in scale by
 orders of magnitude, and a 64-wide projection trained for a few epochs does not undo that); `aux_object_weight`
 > 0 adds a head that predicts the manipulated object's position from the current action token, so the features
-the action read-out uses must carry where the object is."""
+the action read-out uses must carry where the object is; `first_frame` puts the visual tokens of the episode's
+first frame once before the T steps, so what the cameras saw before the arm came between them and the object
+stays in view of every query (the T-step window alone forgets it)."""
 
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ from torch import nn
 from .heads import HEADS, CrossCameraFusion, mlp
 
 GOAL_DIMS = {"none": 0, "2d": 4, "3d": 3}
-PROPRIO_DIMS = {"joints7": 7, "qpos9_global": 9, "qpos9_grouped": 9}
+PROPRIO_DIMS = {"joints7": 7, "qpos9_global": 9, "qpos9_grouped": 9, "joints7_tcp": 10}
 
 
 class SequencePolicy(nn.Module):
@@ -49,31 +51,44 @@ class SequencePolicy(nn.Module):
         self.register_buffer("token_mean", torch.as_tensor(mean, dtype=torch.float32).reshape(D))
         self.register_buffer("token_std", torch.as_tensor(std, dtype=torch.float32).reshape(D))
         self.aux_head = mlp([W, W, 3]) if policy.get("aux_object_weight", 0) > 0 else None
+        self.first_frame = bool(policy.get("first_frame", False))
+        self.prefix = self.cams * self.visual.tokens_out if self.first_frame else 0
+        self.first_pos = nn.Parameter(torch.zeros(self.prefix, W)) if self.first_frame else None
+        if self.first_pos is not None:
+            nn.init.normal_(self.first_pos, std=0.02)
         nn.init.normal_(self.pos, std=0.02)
         nn.init.normal_(self.action_token, std=0.02)
 
-    def tokens(self, tokens, proprio, goal):
-        """(B, T, C, K, D), (B, T, P), (B, T, G) -> the flattened sequence (B, T * per_step, W)."""
+    def _visual(self, tokens):
+        vis = self.visual((tokens - self.token_mean) / self.token_std)  # (B, T, C, k, W)
+        return self.fusion(vis) if self.fusion is not None else vis
+
+    def tokens(self, tokens, proprio, goal, first=None):
+        """(B, T, C, K, D), (B, T, P), (B, T, G) [, first frame (B, C, K, D)] -> the flattened sequence
+        (B, prefix + T * per_step, W)."""
         B, T = tokens.shape[:2]
         if T != self.T:
             raise ValueError(f"policy expects windows of T={self.T} steps, got {T}")
-        vis = self.visual((tokens - self.token_mean) / self.token_std)  # (B, T, C, k, W)
-        if self.fusion is not None:
-            vis = self.fusion(vis)
-        parts = [vis.flatten(2, 3), self.proprio(proprio)[:, :, None]]
+        parts = [self._visual(tokens).flatten(2, 3), self.proprio(proprio)[:, :, None]]
         if self.goal is not None:
             parts.append(self.goal(goal)[:, :, None])
         parts.append(self.action_token.expand(B, T, 1, -1))
-        return torch.cat(parts, dim=2).flatten(1, 2) + self.pos
+        seq = torch.cat(parts, dim=2).flatten(1, 2) + self.pos
+        if not self.first_frame:
+            return seq
+        if first is None:
+            raise ValueError("this policy was trained with first_frame: true and needs the episode's first frame")
+        return torch.cat([self._visual(first[:, None]).flatten(1, 3) + self.first_pos, seq], dim=1)
 
-    def forward(self, tokens, proprio, goal, all_steps: bool = False, aux: bool = False):
+    def forward(self, tokens, proprio, goal, first=None, all_steps: bool = False, aux: bool = False):
         """-> (B, H, 8) predictions for the current step, or (B, T, H, 8) for every step's action token; with
-        ``aux`` also the auxiliary object-position prediction (B, 3) of the current step."""
-        seq = self.tokens(tokens, proprio, goal)
+        ``aux`` also the auxiliary object-position prediction (B, 3) of the current step. ``first``: the
+        episode's first-frame tokens (B, C, K, D), used by first_frame policies only."""
+        seq = self.tokens(tokens, proprio, goal, first)
         L = seq.shape[1]
         mask = nn.Transformer.generate_square_subsequent_mask(L, device=seq.device, dtype=seq.dtype)
         h = self.norm(self.decoder(seq, mask=mask, is_causal=True))
-        act = h[:, self.per_step - 1 :: self.per_step]  # (B, T, W): each step's action token
+        act = h[:, self.prefix + self.per_step - 1 :: self.per_step]  # (B, T, W): each step's action token
         if not all_steps:
             act = act[:, -1:]
         out = self.readout(act)

@@ -8,7 +8,10 @@ Proprioception, by the `proprio` setting:
   joints7        qpos[:7], z-scored per joint.
   qpos9_global   qpos[:9] with ONE mean/std pooled over all 9 dims: the thesis' pathology, since finger widths
                  (0.018-0.040 m) are tiny next to joint angles (radians) and end up nearly constant after scaling.
-  qpos9_grouped  qpos[:9], joints z-scored per joint, the two fingers with one pooled mean/std of their own."""
+  qpos9_grouped  qpos[:9], joints z-scored per joint, the two fingers with one pooled mean/std of their own.
+  joints7_tcp    qpos[:7] and the gripper's tool-centre point (xyz, world frame), z-scored per dimension: the
+                 robot's own hand position, so the policy need not learn forward kinematics from 100 demos to
+                 relate its hand to the object."""
 
 from __future__ import annotations
 
@@ -21,22 +24,35 @@ def _pooled(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.full(x.shape[1], x.mean()), np.full(x.shape[1], x.std())
 
 
-def proprio_stats(qpos: np.ndarray, mode: str) -> tuple[np.ndarray, np.ndarray]:
-    if mode == "joints7":
-        x = qpos[:, :7]
+PROPRIO_MODES = ("joints7", "qpos9_global", "qpos9_grouped", "joints7_tcp")
+
+
+def proprio_input(qpos: np.ndarray, tcp_pos: np.ndarray | None, mode: str) -> np.ndarray:
+    """The raw proprioception vector of a mode, from the robot's qpos (..., 9) and TCP position (..., 3)."""
+    if mode == "joints7_tcp":
+        if tcp_pos is None:
+            raise ValueError("policy.proprio joints7_tcp needs the TCP position (frames store array tcp_pos)")
+        return np.concatenate([qpos[..., :7], tcp_pos], axis=-1)
+    return qpos[..., : (7 if mode == "joints7" else 9)]
+
+
+def proprio_stats(x: np.ndarray, mode: str) -> tuple[np.ndarray, np.ndarray]:
+    """Mean/std of the proprioception vectors ``x`` (n, P) of ``mode`` (see proprio_input)."""
+    if mode in ("joints7", "joints7_tcp"):
         return x.mean(0), x.std(0)
     if mode == "qpos9_global":
-        return _pooled(qpos[:, :9])
+        return _pooled(x[:, :9])
     if mode == "qpos9_grouped":
-        (jm, js), (fm, fs) = (qpos[:, :7].mean(0), qpos[:, :7].std(0)), _pooled(qpos[:, 7:9])
+        (jm, js), (fm, fs) = (x[:, :7].mean(0), x[:, :7].std(0)), _pooled(x[:, 7:9])
         return np.concatenate([jm, fm]), np.concatenate([js, fs])
-    raise ValueError(f"policy.proprio: unknown mode {mode!r} (allowed: joints7, qpos9_global, qpos9_grouped)")
+    raise ValueError(f"policy.proprio: unknown mode {mode!r} (allowed: {', '.join(PROPRIO_MODES)})")
 
 
-def compute(qpos: np.ndarray, action: np.ndarray, proprio_mode: str) -> dict[str, np.ndarray]:
+def compute(proprio_x: np.ndarray, action: np.ndarray, proprio_mode: str) -> dict[str, np.ndarray]:
+    """Stats of the training frames: ``proprio_x`` their proprio_input vectors, ``action`` their actions."""
     am, asd = action.mean(0), action.std(0)
     am[7], asd[7] = 0.0, 1.0  # gripper untouched
-    pm, psd = proprio_stats(qpos.astype(np.float64), proprio_mode)
+    pm, psd = proprio_stats(proprio_x.astype(np.float64), proprio_mode)
     f32 = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
     return {"action_mean": f32(am), "action_std": f32(np.maximum(asd, EPS)),
             "proprio_mean": f32(pm), "proprio_std": f32(np.maximum(psd, EPS))}
@@ -59,9 +75,9 @@ def residual_base(qpos: np.ndarray) -> np.ndarray:
     return base
 
 
-def proprio(qpos: np.ndarray, stats: dict) -> np.ndarray:
-    dims = len(stats["proprio_mean"])
-    return ((qpos[..., :dims] - stats["proprio_mean"]) / stats["proprio_std"]).astype(np.float32)
+def proprio(x: np.ndarray, stats: dict) -> np.ndarray:
+    """Z-score proprio_input vectors (..., P) with the training statistics."""
+    return ((x - stats["proprio_mean"]) / stats["proprio_std"]).astype(np.float32)
 
 
 def action_to_model(action: np.ndarray, stats: dict) -> np.ndarray:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import os
 import shutil
 import time
@@ -77,7 +78,8 @@ def load_data(policy: dict, features_path, frames_path):
     """-> (tokens array, Labels, normalization stats computed from the training frames, meta, (train, val) frames)."""
     goal = (goal_source(policy),) if policy["goal"] != "none" else ()
     aux = ("obj_pos",) if policy.get("aux_object_weight", 0) > 0 else ()
-    feats, frames = open_features(features_path), open_store(frames_path, need=("qpos", "action", *goal, *aux))
+    tcp = ("tcp_pos",) if policy["proprio"] == "joints7_tcp" else ()
+    feats, frames = open_features(features_path), open_store(frames_path, need=("qpos", "action", *goal, *aux, *tcp))
     check_provenance(feats, features_path, frames, frames_path)
     tokens = PolicyTokens(feats, policy.get("slot_geometry", False), str(features_path))
     if tokens.shape[0] != frames["qpos"].shape[0]:
@@ -89,7 +91,9 @@ def load_data(policy: dict, features_path, frames_path):
     offsets = frames.attrs["episode_offsets"]
     train_frames, val_frames = split_episodes(offsets, policy.get("val_episodes", 0), str(frames_path))
     qpos, action = frames["qpos"][:].astype(np.float32), frames["action"][:].astype(np.float32)
-    stats = normalization.compute(qpos[train_frames], action[train_frames], policy["proprio"])
+    proprio_x = normalization.proprio_input(qpos, frames["tcp_pos"][:].astype(np.float32) if tcp else None,
+                                            policy["proprio"])
+    stats = normalization.compute(proprio_x[train_frames], action[train_frames], policy["proprio"])
     extra = {}
     if policy.get("joint_targets", "absolute") == "residual":
         bounds = Labels.from_offsets(offsets, qpos, qpos, action)
@@ -106,10 +110,13 @@ def load_data(policy: dict, features_path, frames_path):
         obj = frames["obj_pos"][:].astype(np.float32)
         stats["aux_mean"], stats["aux_std"] = obj[train_frames].mean(0), np.maximum(obj[train_frames].std(0), 1e-6)
         extra["aux"] = ((obj - stats["aux_mean"]) / stats["aux_std"]).astype(np.float32)
+    if policy.get("first_frame", False):
+        starts = np.asarray(offsets[:-1], dtype=np.int64)
+        extra["first"] = (starts, np.stack([np.asarray(tokens[s : s + 1], dtype=np.float32)[0] for s in starts]))
     if policy.get("token_norm", "none") == "zscore":
         stats["token_mean"], stats["token_std"] = token_stats(tokens, train_frames)
     labels = Labels.from_offsets(
-        offsets, normalization.proprio(qpos, stats), goal_array(frames, policy), model_action, **extra
+        offsets, normalization.proprio(proprio_x, stats), goal_array(frames, policy), model_action, **extra
     )
     meta = {
         "K": int(tokens.shape[2]),
@@ -136,6 +143,14 @@ def _fingerprint(policy: dict, seed: int, meta: dict) -> str:
 
 def _epoch_seed(seed: int, epoch: int) -> int:
     return int(np.random.SeedSequence([seed, epoch]).generate_state(1)[0])
+
+
+def learning_rate(policy: dict, step: int, total_steps: int) -> float:
+    """The learning rate of training batch ``step`` of ``total_steps``: a function of the step alone, so a resumed
+    run follows the same schedule without any scheduler state."""
+    if policy.get("lr_schedule", "constant") == "cosine":
+        return policy["lr"] * 0.5 * (1.0 + math.cos(math.pi * step / max(total_steps, 1)))
+    return policy["lr"]
 
 
 def _save(obj: dict, path: Path) -> None:
@@ -213,11 +228,14 @@ def train(
             unit="batch",
             desc=f"{policy.get('name', 'policy')} epoch {epoch + 1}/{policy['epochs']}",
         )
-        for batch in bar:
+        for i, batch in enumerate(bar):
+            lr = learning_rate(policy, epoch * len(loader) + i, policy["epochs"] * len(loader))
+            for group in opt.param_groups:
+                group["lr"] = lr
             batch = {k: v.to(device) for k, v in batch.items()}
             if proprio_noise > 0:  # blur the joint history so the policy cannot act on it alone (copycat)
                 batch["proprio"] = batch["proprio"] + proprio_noise * torch.randn_like(batch["proprio"])
-            pred, aux = model(batch["tokens"], batch["proprio"], batch["goal"], aux=True)
+            pred, aux = model(batch["tokens"], batch["proprio"], batch["goal"], batch.get("first"), aux=True)
             w = loss_weights(policy["loss_weighting"], batch["progress"], epoch, policy["time_weight_warmup_epochs"])
             terms = loss_terms(pred, batch["action"], w, policy["gripper"] == "bce")
             terms["loss_aux"] = ((aux - batch["aux"]) ** 2).mean() if aux is not None else torch.zeros(())
@@ -235,7 +253,7 @@ def train(
         row = {
             "epoch": epoch + 1,
             **{k: v / n for k, v in sums.items()},
-            "lr": policy["lr"],
+            "lr": lr,
             "seconds": time.perf_counter() - t0,
             **(openloop_error(model, val_loader, labels, stats, policy, device) if val_loader else {}),
         }
@@ -278,7 +296,8 @@ def openloop_error(model, loader: ChunkWindowLoader, labels: Labels, stats: dict
     joint_err, first_err, grip_ok, n = 0.0, 0.0, 0.0, 0
     for batch in loader.epoch(0):
         frames = batch["frame"].numpy()
-        pred = model(batch["tokens"].to(device), batch["proprio"].to(device), batch["goal"].to(device)).cpu().numpy()
+        inputs = [batch[k].to(device) if k in batch else None for k in ("tokens", "proprio", "goal", "first")]
+        pred = model(*inputs).cpu().numpy()
         qpos = labels.residual[0][frames][:, :7] if labels.residual is not None else None
         got = normalization.action_from_model(pred, stats, qpos=qpos)
         want = labels.action[action_frames(frames, labels, policy["horizon"])]

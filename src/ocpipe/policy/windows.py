@@ -28,6 +28,8 @@ class Labels:
     # residual targets: (base (N, 8) the current joints, mean (H, 8), std (H, 8)); target = (a - base - mean) / std
     residual: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     aux: np.ndarray | None = None  # (N, A) auxiliary per-frame targets (normalized object position), training only
+    # first-frame context: (episode start frames (E,), their visual tokens (E, C, K, D)), for `first_frame` policies
+    first: tuple[np.ndarray, np.ndarray] | None = None
 
     @classmethod
     def from_offsets(cls, offsets, proprio, goal, action, **extra) -> "Labels":
@@ -80,6 +82,10 @@ def make_batch(
     }
     if labels.aux is not None:
         batch["aux"] = torch.from_numpy(labels.aux[frames])
+    if labels.first is not None:
+        starts, first = labels.first
+        episode = np.searchsorted(starts, labels.start[frames])
+        batch["first"] = torch.from_numpy(np.ascontiguousarray(first[episode][:, cameras], dtype=np.float32))
     return batch
 
 
