@@ -19,6 +19,7 @@ test: setup lint
 lint:
 	.venv/bin/ruff check .
 	.venv/bin/snakefmt --check Snakefile workflow/rules
+	$(SNAKEMAKE) --lint
 
 dry-run: setup
 	$(SNAKEMAKE) -n --cores $(CORES)
