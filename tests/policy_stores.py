@@ -76,6 +76,7 @@ def policy_settings(**overrides) -> dict:
         joint_targets="absolute",
         lr_schedule="constant",
         first_frame=False,
+        object_readout=False,
         val_episodes=0,
         name="test",
     )

@@ -165,6 +165,23 @@ def test_first_frame_policy_sees_the_episode_start_at_every_step(tmp_path):
         model(batch["tokens"], batch["proprio"], batch["goal"])
 
 
+def test_object_readout_learns_the_pose_and_the_action_loss_cannot_reshape_it(tmp_path):
+    features, frames = write_stores(tmp_path)
+    policy = policy_settings(object_readout=True, epochs=4, save_every=4)
+    tokens, labels, *_ = load_data(policy, features, frames)
+    batch = next(ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], 8, policy["cameras"], 0)
+                 .epoch(0))
+    assert batch["readout"].shape == (8, policy["window"], 5)
+    torch.manual_seed(0)
+    model = SequencePolicy(policy, 7, 16)
+    pred, aux = model(batch["tokens"], batch["proprio"], batch["goal"], aux=True)
+    assert aux["readout"].shape == (8, policy["window"], 5)
+    loss_terms(pred, batch["action"], torch.ones_like(pred), False)["loss"].backward()
+    assert all(p.grad is None for p in model.object_readout.parameters())  # detached from the action loss
+    log = train(policy, 0, features, frames, tmp_path / "run", progress=False)
+    assert log["loss_readout"][-1] < log["loss_readout"][0]
+
+
 def test_windows_pad_at_episode_edges():
     labels = Labels.from_offsets([0, 4, 10], np.zeros((10, 7)), np.zeros((10, 0)), np.zeros((10, 8)))
     frames = np.array([0, 1, 4, 9])
@@ -219,7 +236,8 @@ def test_training_writes_checkpoints_and_log_and_a_killed_run_resumes_identicall
     policy = policy_settings(loss_weighting="u_shaped")
     full = train(policy, 0, features, frames, tmp_path / "full", progress=False)
     assert full["epoch"].to_list() == [1, 2, 3, 4]
-    assert set(full.columns) == {"epoch", "loss", "loss_joints", "loss_gripper", "loss_aux", "lr", "seconds"}
+    assert set(full.columns) == {"epoch", "loss", "loss_joints", "loss_gripper", "loss_aux", "loss_readout", "lr",
+                                 "seconds"}
     assert full["loss"][-1] < full["loss"][0]
     ckpts = sorted(p.name for p in (tmp_path / "full" / "checkpoints").iterdir())
     assert ckpts == ["epoch_0002.pt", "epoch_0004.pt"]

@@ -58,7 +58,8 @@ def train_stage(store_paths: list[str | Path], enc_cfg: dict, seed: int, out_ckp
                 "workspace_max": enc_cfg["workspace_max"],
                 "train_stores": [str(p) for p in store_paths],
                 "train_images": len(images),
-                "train_seconds": train_seconds,
+                # no wall time in here (held_out_decomposition.json has it): the checkpoint's sha256 is its
+                # identity, and it must not change between two runs that trained the same weights
             },
         )
     with atomic_path(out_curve) as tmp:

@@ -63,8 +63,10 @@ def train_slot_module(vit, images_u8: torch.Tensor, image_size: int, steps: int,
 
 
 def save_slot_module(sa: SlotAttention, path: str | Path, meta: dict) -> None:
-    torch.save({"encoder": "spot_slots_on_dino", "slot_kwargs": meta.get("slot_kwargs", SLOT_KWARGS),
-                "state_dict": sa.state_dict(), **meta}, path)
+    # a file object keeps the temporary file's name out of the archive (see ssl_slots.save)
+    with open(path, "wb") as fh:
+        torch.save({"encoder": "spot_slots_on_dino", "slot_kwargs": meta.get("slot_kwargs", SLOT_KWARGS),
+                    "state_dict": sa.state_dict(), **meta}, fh)
 
 
 def load_slot_module(path: str | Path) -> SlotAttention:

@@ -161,7 +161,12 @@ def train(images_u8: torch.Tensor, cfg: SSLSlotsConfig, threads: int = 1, progre
 
 
 def save(model: SSLSlotEncoder, path, extra: dict) -> None:
-    torch.save({"encoder": "slots_ssl", "config": asdict(model.cfg), "state_dict": model.state_dict(), **extra}, path)
+    # through a file object: given a path, torch.save names the archive inside the file after it, and writers pass
+    # a temporary .tmp-<pid>-model.pt; the bytes, and the sha256 that features stores and policies record, would
+    # then differ between two runs that trained the same weights
+    with open(path, "wb") as fh:
+        torch.save({"encoder": "slots_ssl", "config": asdict(model.cfg), "state_dict": model.state_dict(), **extra},
+                   fh)
 
 
 def load(path) -> tuple[SSLSlotEncoder, dict]:

@@ -12,13 +12,17 @@ orders of magnitude, and a 64-wide projection trained for a few epochs does not 
 > 0 adds a head that predicts the manipulated object's position from the current action token, so the features
 the action read-out uses must carry where the object is; `first_frame` puts the visual tokens of the episode's
 first frame once before the T steps, so what the cameras saw before the arm came between them and the object
-stays in view of every query (the T-step window alone forgets it)."""
+stays in view of every query (the T-step window alone forgets it); `object_readout` adds, per step, a token made
+from an MLP's read-out of the object's pose (position, sin/cos of 4x yaw: what the privileged-state control sees)
+from that step's frozen tokens, trained on the frames store's poses and passed on without gradient, so the
+policy gets an explicit object estimate it cannot reshape to fit the actions."""
 
 from __future__ import annotations
 
 import torch
 from torch import nn
 
+from ..encoders.state import STATE_DIMS
 from .heads import HEADS, CrossCameraFusion, mlp
 
 GOAL_DIMS = {"none": 0, "2d": 4, "3d": 3}
@@ -39,7 +43,10 @@ class SequencePolicy(nn.Module):
         self.proprio = mlp([PROPRIO_DIMS[policy["proprio"]], W, W, W])
         self.goal = {"none": None, "2d": mlp([4, W, W, W]), "3d": nn.Linear(3, W)}[self.goal_kind]
         self.action_token = nn.Parameter(torch.zeros(W))
-        self.per_step = self.cams * self.visual.tokens_out + 1 + (self.goal is not None) + 1
+        readout = policy.get("object_readout", False)
+        self.object_readout = mlp([self.cams * K * D, 4 * W, 4 * W, STATE_DIMS]) if readout else None
+        self.object_token = nn.Linear(STATE_DIMS, W) if readout else None
+        self.per_step = self.cams * self.visual.tokens_out + 1 + (self.goal is not None) + readout + 1
         self.pos = nn.Parameter(torch.zeros(self.T * self.per_step, W))
         layer = nn.TransformerEncoderLayer(W, heads, 4 * W, dropout=policy["dropout"], activation="gelu",
                                            batch_first=True, norm_first=True)
@@ -65,26 +72,32 @@ class SequencePolicy(nn.Module):
 
     def tokens(self, tokens, proprio, goal, first=None):
         """(B, T, C, K, D), (B, T, P), (B, T, G) [, first frame (B, C, K, D)] -> the flattened sequence
-        (B, prefix + T * per_step, W)."""
+        (B, prefix + T * per_step, W) and the object read-out (B, T, 5) (None without one)."""
         B, T = tokens.shape[:2]
         if T != self.T:
             raise ValueError(f"policy expects windows of T={self.T} steps, got {T}")
         parts = [self._visual(tokens).flatten(2, 3), self.proprio(proprio)[:, :, None]]
         if self.goal is not None:
             parts.append(self.goal(goal)[:, :, None])
+        readout = None
+        if self.object_readout is not None:
+            readout = self.object_readout(((tokens - self.token_mean) / self.token_std).flatten(2))
+            parts.append(self.object_token(readout.detach())[:, :, None])
         parts.append(self.action_token.expand(B, T, 1, -1))
         seq = torch.cat(parts, dim=2).flatten(1, 2) + self.pos
         if not self.first_frame:
-            return seq
+            return seq, readout
         if first is None:
             raise ValueError("this policy was trained with first_frame: true and needs the episode's first frame")
-        return torch.cat([self._visual(first[:, None]).flatten(1, 3) + self.first_pos, seq], dim=1)
+        return torch.cat([self._visual(first[:, None]).flatten(1, 3) + self.first_pos, seq], dim=1), readout
 
     def forward(self, tokens, proprio, goal, first=None, all_steps: bool = False, aux: bool = False):
         """-> (B, H, 8) predictions for the current step, or (B, T, H, 8) for every step's action token; with
-        ``aux`` also the auxiliary object-position prediction (B, 3) of the current step. ``first``: the
-        episode's first-frame tokens (B, C, K, D), used by first_frame policies only."""
-        seq = self.tokens(tokens, proprio, goal, first)
+        ``aux`` also a dict of the auxiliary predictions: 'object_pos' (B, 3), the auxiliary head's object position
+        at the current step, and 'readout' (B, T, 5), the object read-out of every step (each None when the
+        policy has no such head). ``first``: the episode's first-frame tokens (B, C, K, D), for first_frame
+        policies only."""
+        seq, readout = self.tokens(tokens, proprio, goal, first)
         L = seq.shape[1]
         mask = nn.Transformer.generate_square_subsequent_mask(L, device=seq.device, dtype=seq.dtype)
         h = self.norm(self.decoder(seq, mask=mask, is_causal=True))
@@ -101,7 +114,8 @@ class SequencePolicy(nn.Module):
             out = torch.cat([torch.tanh(out[..., :7]), out[..., 7:]], -1)
         out = out if all_steps else out[:, 0]
         if aux:
-            return out, self.aux_head(act[:, -1]) if self.aux_head is not None else None
+            obj = self.aux_head(act[:, -1]) if self.aux_head is not None else None
+            return out, {"object_pos": obj, "readout": readout}
         return out
 
 

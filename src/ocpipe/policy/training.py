@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from ..atomic import atomic_path
 from ..devices import pick_device
+from ..encoders.state import state_tokens
 from ..features import PolicyTokens, check_provenance, open_features
 from ..frames_store import open_store
 from . import normalization
@@ -78,6 +79,7 @@ def load_data(policy: dict, features_path, frames_path):
     """-> (tokens array, Labels, normalization stats computed from the training frames, meta, (train, val) frames)."""
     goal = (goal_source(policy),) if policy["goal"] != "none" else ()
     aux = ("obj_pos",) if policy.get("aux_object_weight", 0) > 0 else ()
+    aux += ("obj_pos", "obj_quat") if policy.get("object_readout", False) else ()
     tcp = ("tcp_pos",) if policy["proprio"] == "joints7_tcp" else ()
     feats, frames = open_features(features_path), open_store(frames_path, need=("qpos", "action", *goal, *aux, *tcp))
     check_provenance(feats, features_path, frames, frames_path)
@@ -110,6 +112,11 @@ def load_data(policy: dict, features_path, frames_path):
         obj = frames["obj_pos"][:].astype(np.float32)
         stats["aux_mean"], stats["aux_std"] = obj[train_frames].mean(0), np.maximum(obj[train_frames].std(0), 1e-6)
         extra["aux"] = ((obj - stats["aux_mean"]) / stats["aux_std"]).astype(np.float32)
+    if policy.get("object_readout", False):
+        pose = state_tokens(frames["obj_pos"][:], frames["obj_quat"][:])[:, 0, 0]
+        stats["readout_mean"] = pose[train_frames].mean(0)
+        stats["readout_std"] = np.maximum(pose[train_frames].std(0), 1e-6)
+        extra["readout"] = ((pose - stats["readout_mean"]) / stats["readout_std"]).astype(np.float32)
     if policy.get("first_frame", False):
         starts = np.asarray(offsets[:-1], dtype=np.int64)
         extra["first"] = (starts, np.stack([np.asarray(tokens[s : s + 1], dtype=np.float32)[0] for s in starts]))
@@ -219,7 +226,7 @@ def train(
         torch.manual_seed(_epoch_seed(seed, epoch))
         model.train()
         t0 = time.perf_counter()
-        sums = {"loss": 0.0, "loss_joints": 0.0, "loss_gripper": 0.0, "loss_aux": 0.0}
+        sums = {"loss": 0.0, "loss_joints": 0.0, "loss_gripper": 0.0, "loss_aux": 0.0, "loss_readout": 0.0}
         n = 0
         bar = tqdm(
             loader.epoch(epoch),
@@ -238,9 +245,14 @@ def train(
             pred, aux = model(batch["tokens"], batch["proprio"], batch["goal"], batch.get("first"), aux=True)
             w = loss_weights(policy["loss_weighting"], batch["progress"], epoch, policy["time_weight_warmup_epochs"])
             terms = loss_terms(pred, batch["action"], w, policy["gripper"] == "bce")
-            terms["loss_aux"] = ((aux - batch["aux"]) ** 2).mean() if aux is not None else torch.zeros(())
-            if aux is not None:
+            terms["loss_aux"] = torch.zeros(())
+            if aux["object_pos"] is not None:
+                terms["loss_aux"] = ((aux["object_pos"] - batch["aux"]) ** 2).mean()
                 terms["loss"] = terms["loss"] + aux_weight * terms["loss_aux"]
+            terms["loss_readout"] = torch.zeros(())
+            if aux["readout"] is not None:  # its own loss: the policy's tokens see the read-out without gradient
+                terms["loss_readout"] = ((aux["readout"] - batch["readout"]) ** 2).mean()
+                terms["loss"] = terms["loss"] + terms["loss_readout"]
             opt.zero_grad(set_to_none=True)
             terms["loss"].backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), policy["grad_clip"])

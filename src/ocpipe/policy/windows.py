@@ -28,6 +28,7 @@ class Labels:
     # residual targets: (base (N, 8) the current joints, mean (H, 8), std (H, 8)); target = (a - base - mean) / std
     residual: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     aux: np.ndarray | None = None  # (N, A) auxiliary per-frame targets (normalized object position), training only
+    readout: np.ndarray | None = None  # (N, 5) normalized object pose tokens, the object read-out's targets
     # first-frame context: (episode start frames (E,), their visual tokens (E, C, K, D)), for `first_frame` policies
     first: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -82,6 +83,8 @@ def make_batch(
     }
     if labels.aux is not None:
         batch["aux"] = torch.from_numpy(labels.aux[frames])
+    if labels.readout is not None:
+        batch["readout"] = torch.from_numpy(labels.readout[win])
     if labels.first is not None:
         starts, first = labels.first
         episode = np.searchsorted(starts, labels.start[frames])
