@@ -161,8 +161,9 @@ def learning_rate(policy: dict, step: int, total_steps: int) -> float:
 
 
 def _save(obj: dict, path: Path) -> None:
-    with atomic_path(path) as tmp:
-        torch.save(obj, tmp)
+    # through a file object: given a path, torch.save names the archive inside after the temporary file
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        torch.save(obj, fh)
 
 
 def train(
