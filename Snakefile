@@ -28,10 +28,9 @@ rule spatial_grounding:
     """The main job: Tables 5.1 and 5.2 and figures 5.1-5.3 (Pure Visual / 2D-Spatial-Proj / Explicit-3D-GT and the
     privileged-state control), with the diagnostics and position probes of the visual policies' features store."""
     input:
-        "results/tables/table5_1.csv",
-        "results/tables/table5_2.csv",
-        expand("results/figures/fig5_{n}.png", n=(1, 2, 3)),
-        f"results/features/{_exp.features_store(_exp.resolve(config, 'goal3d'))}.diagnostics.json",
+        expand(f"{paths.TABLE}.csv", table=("table5_1", "table5_2")),
+        expand(paths.FIGURE, figure=("fig5_1", "fig5_2", "fig5_3")),
+        paths.features_diagnostics(_exp.features_store(_exp.resolve(config, "goal3d"))),
 
 
 rule encodings:
@@ -44,17 +43,15 @@ rule encodings:
 rule ablations:
     """Tables 5.3-5.9 and figures 5.5-5.6 (PickCube)."""
     input:
-        expand("results/tables/table5_{n}.csv", n=range(3, 10)),
-        "results/figures/fig5_5.png",
-        "results/figures/fig5_6.png",
+        expand(f"{paths.TABLE}.csv", table=[f"table5_{n}" for n in range(3, 10)]),
+        expand(paths.FIGURE, figure=("fig5_5", "fig5_6")),
 
 
 rule stackcube:
     """Tables 5.10-5.11 and figure 5.7 (StackCube native vs aligned, failures with Grasp No Stack, funnel)."""
     input:
-        "results/tables/table5_10.csv",
-        "results/tables/table5_11.csv",
-        "results/figures/fig5_7.png",
+        expand(f"{paths.TABLE}.csv", table=("table5_10", "table5_11")),
+        paths.FIGURE.format(figure="fig5_7"),
 
 
 rule all:

@@ -6,7 +6,7 @@ import polars as pl
 import pytest
 import torch
 
-from ocpipe import evaluation_jobs, report, study, tables
+from ocpipe import evaluation_jobs, paths, report, study, tables
 from ocpipe.config import deep_merge
 
 
@@ -124,3 +124,11 @@ def test_stackcube_failure_table_always_has_grasp_no_stack(tmp_path):
     t = tables.table5_2({"Native": classes}, always=("Grasp No Stack",)).row(0, named=True)
     assert t["Grasp No Stack"] == 0 and t["Grasp No Stack %"] == 0.0 and t["Total"] == 2
     assert "Grasp No Stack" not in tables.table5_2({"Native": classes}).columns
+
+
+def test_run_files_come_from_the_path_patterns_under_any_runs_folder(default_config):
+    assert study.artefacts(default_config, "goal2d", "best") == ["results/runs/goal2d/best.json"]
+    assert study.artefacts(default_config, "goal2d", "stability", runs_dir="/x/runs")[0] == (
+        "/x/runs/goal2d/stability/run_0.episodes.parquet")
+    assert study.artefacts(default_config, "goal2d", "sweep")[-1] == (
+        paths.SWEEP.format(exp="goal2d", epoch=f"{default_config['policy']['epochs']:04d}") + ".episodes.parquet")

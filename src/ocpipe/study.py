@@ -6,6 +6,7 @@ files the config does not give are reported as such instead of being built."""
 
 from __future__ import annotations
 
+from . import paths
 from .experiments import missing_weights, resolve, saved_epochs
 
 TITLES = {
@@ -48,17 +49,18 @@ FIGURES = {
 
 
 def artefacts(config: dict, exp: str, need: str, runs_dir: str = "results/runs") -> list[str]:
-    """Files under results/runs/{exp}/ holding one of a row's needs."""
-    run = f"{runs_dir}/{exp}"
+    """Files under results/runs/{exp}/ (paths.RUN) holding one of a row's needs."""
     if need == "stability":
-        return [f"{run}/stability/run_{r}.episodes.parquet" for r in range(config["evaluation"]["stability_runs"])]
+        return [paths.in_runs(paths.STABILITY, runs_dir, exp=exp, run=r) + ".episodes.parquet"
+                for r in range(config["evaluation"]["stability_runs"])]
     if need == "sweep":
-        return [f"{run}/sweep/epoch_{e:04d}.episodes.parquet" for e in saved_epochs(resolve(config, exp))]
-    single = {"failures": "failures.parquet", "train_log": "train_log.parquet", "checkpoints": "checkpoints",
-              "train_seeds": "train_seeds.episodes.parquet", "best": "best.json"}
+        return [paths.in_runs(paths.SWEEP, runs_dir, exp=exp, epoch=f"{e:04d}") + ".episodes.parquet"
+                for e in saved_epochs(resolve(config, exp))]
+    single = {"failures": paths.FAILURES, "train_log": paths.TRAIN_LOG, "checkpoints": paths.CHECKPOINTS,
+              "train_seeds": paths.TRAIN_SEEDS + ".episodes.parquet", "best": paths.BEST}
     if need not in single:
         raise ValueError(f"unknown table need {need!r}")
-    return [f"{run}/{single[need]}"]
+    return [paths.in_runs(single[need], runs_dir, exp=exp)]
 
 
 def rows(config: dict, table: str) -> dict[str, str]:

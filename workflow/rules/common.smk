@@ -1,7 +1,7 @@
 # What the stage files share: wildcard constraints, config slices passed as params (so a change in one config
 # section reruns exactly the jobs that read it), target lists and every input function.
 from ocpipe import experiments as _exp
-from ocpipe import study
+from ocpipe import paths, study
 
 
 wildcard_constraints:
@@ -50,13 +50,25 @@ def frames_stores():
     ]
 
 
+def _store_fields(store, encoder=None):
+    """A frames store name -> the path fields {task, cams, res} (and encoder)."""
+    task, cams, res = store.rsplit("_", 2)
+    return {"task": task, "cams": cams, "res": res, "encoder": encoder}
+
+
+def frames_files(store):
+    """A frames store's report and contact sheet."""
+    fields = _store_fields(store)
+    return [paths.FRAMES_REPORT.format(**fields), paths.FRAMES_CONTACT.format(**fields)]
+
+
 def frames_targets():
-    return [f"results/frames/{s}{ext}" for s in frames_stores() for ext in (".zarr", ".report.json", ".contact.png")]
+    return [p for s in frames_stores() for p in (paths.frames_store(s), *frames_files(s))]
 
 
 def _features_outputs(store, enc):
-    out = [f"results/features/{store}_{enc}.zarr", f"results/features/{store}_{enc}.diagnostics.json"]
-    return out + ([f"results/figures/attention_{store}_{enc}.png"] if enc in ("slots_ssl", "spot") else [])
+    out = [paths.features_store(f"{store}_{enc}"), paths.features_diagnostics(f"{store}_{enc}")]
+    return out + ([paths.ATTENTION_FIGURE.format(**_store_fields(store, enc))] if enc in ("slots_ssl", "spot") else [])
 
 
 def features_targets(encoders=("slots_ssl",)):
@@ -70,7 +82,7 @@ def experiment_encoding_targets():
     for exp in study.experiments_of(config):
         p = _exp.resolve(config, exp)
         store = _exp.frames_store(p)
-        for f in [f"results/frames/{store}.report.json", *_features_outputs(store, p["encoder"])]:
+        for f in [frames_files(store)[0], *_features_outputs(store, p["encoder"])]:
             if f not in out:
                 out.append(f)
     return out
@@ -79,14 +91,14 @@ def experiment_encoding_targets():
 def encoder_checkpoint(encoder):
     """The checkpoint file a features job depends on (a workflow output, or a user-given weight file)."""
     if encoder == "slots_ssl":
-        return "results/encoders/slots_ssl/model.pt"
+        return f"{paths.SLOTS_SSL}/model.pt"
     if encoder == "state":  # the privileged-state control reads poses from the frames store
         return []
     spot, dino = config["encoders"]["spot"], config["encoders"]["dino"]
     if encoder == "spot":
         if spot["checkpoint"]:
             return spot["checkpoint"]
-        return "results/encoders/spot/slot_module.pt" if spot["dino_checkpoint"] else []
+        return f"{paths.SPOT_SLOTS}/slot_module.pt" if spot["dino_checkpoint"] else []
     return dino["checkpoint"] or []  # a missing weight file fails the job with a message naming the key
 
 
@@ -98,8 +110,8 @@ def policy_of(w):
 def eval_inputs(w):
     p = policy_of(w)
     return {
-        "checkpoints": f"results/runs/{w.exp}/checkpoints",
-        "frames": f"results/frames/{_exp.frames_store(p)}.zarr",
+        "checkpoints": paths.CHECKPOINTS.format(exp=w.exp),
+        "frames": paths.frames_store(_exp.frames_store(p)),
         "encoder": encoder_checkpoint(p["encoder"]),
     }
 
@@ -115,5 +127,5 @@ def stability_outputs(exp):
 def failure_inputs(exp):
     """Episodes the taxonomy classifies: a dedicated run, or (failure_episodes: 0) the stability runs."""
     if config["evaluation"]["failure_episodes"]:
-        return [f"results/runs/{exp}/failure_run.episodes.parquet"]
+        return [paths.FAILURE_RUN.format(exp=exp) + ".episodes.parquet"]
     return stability_outputs(exp)

@@ -5,9 +5,9 @@ if config["demos"]["source"] == "motionplanning":
 
     rule demos_shard:
         output:
-            h5="results/demos/shards/{task}/shard{shard}.h5",
-            json="results/demos/shards/{task}/shard{shard}.json",
-            report="results/demos/shards/{task}/shard{shard}.report.json",
+            h5=f"{paths.DEMO_SHARD}.h5",
+            json=f"{paths.DEMO_SHARD}.json",
+            report=f"{paths.DEMO_SHARD}.report.json",
         log:
             "results/logs/demos_shard/{task}_shard{shard}.log",
         benchmark:
@@ -24,14 +24,14 @@ if config["demos"]["source"] == "motionplanning":
 
     rule demos_merge:
         input:
-            h5=expand("results/demos/shards/{{task}}/shard{shard}.h5", shard=range(config["demos"]["shards"])),
+            h5=expand(f"{paths.DEMO_SHARD}.h5", shard=range(config["demos"]["shards"]), allow_missing=True),
             reports=expand(
-                "results/demos/shards/{{task}}/shard{shard}.report.json", shard=range(config["demos"]["shards"])
+                f"{paths.DEMO_SHARD}.report.json", shard=range(config["demos"]["shards"]), allow_missing=True
             ),
         output:
-            h5="results/demos/{task}.h5",
-            json="results/demos/{task}.json",
-            report="results/demos/{task}.report.json",
+            h5=f"{paths.DEMOS}.h5",
+            json=f"{paths.DEMOS}.json",
+            report=f"{paths.DEMOS}.report.json",
         log:
             "results/logs/demos_merge/{task}.log",
         benchmark:
@@ -51,9 +51,9 @@ else:
             h5=lambda w: config["demos"]["import"][w.task]["h5"],
             json=lambda w: config["demos"]["import"][w.task]["json"],
         output:
-            h5="results/demos/{task}.h5",
-            json="results/demos/{task}.json",
-            report="results/demos/{task}.report.json",
+            h5=f"{paths.DEMOS}.h5",
+            json=f"{paths.DEMOS}.json",
+            report=f"{paths.DEMOS}.report.json",
         log:
             "results/logs/demos_import/{task}.log",
         benchmark:

@@ -4,11 +4,11 @@
 
 rule train_slots_ssl:
     input:
-        stores=expand("results/frames/{store}.zarr", store=config["encoders"]["slots_ssl"]["train_stores"]),
+        stores=[paths.frames_store(s) for s in config["encoders"]["slots_ssl"]["train_stores"]],
     output:
-        ckpt="results/encoders/slots_ssl/model.pt",
-        curve="results/encoders/slots_ssl/train_curve.parquet",
-        eval="results/encoders/slots_ssl/held_out_decomposition.json",
+        ckpt=f"{paths.SLOTS_SSL}/model.pt",
+        curve=f"{paths.SLOTS_SSL}/train_curve.parquet",
+        eval=f"{paths.SLOTS_SSL}/held_out_decomposition.json",
     log:
         "results/logs/train_slots_ssl.log",
     benchmark:
@@ -28,11 +28,11 @@ rule train_slots_ssl:
 rule train_spot_slots_on_dino:
     """Only when encoders.spot.dino_checkpoint is given without SPOT's own checkpoint."""
     input:
-        stores=expand("results/frames/{store}.zarr", store=config["encoders"]["slots_ssl"]["train_stores"]),
+        stores=[paths.frames_store(s) for s in config["encoders"]["slots_ssl"]["train_stores"]],
         dino=lambda w: config["encoders"]["spot"]["dino_checkpoint"] or "encoders.spot.dino_checkpoint is not set",
     output:
-        ckpt="results/encoders/spot/slot_module.pt",
-        curve="results/encoders/spot/train_curve.parquet",
+        ckpt=f"{paths.SPOT_SLOTS}/slot_module.pt",
+        curve=f"{paths.SPOT_SLOTS}/train_curve.parquet",
     log:
         "results/logs/train_spot_slots_on_dino.log",
     benchmark:

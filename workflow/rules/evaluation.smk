@@ -30,8 +30,8 @@ rule sweep:
     input:
         unpack(eval_inputs),
     output:
-        episodes="results/runs/{exp}/sweep/epoch_{epoch}.episodes.parquet",
-        steps="results/runs/{exp}/sweep/epoch_{epoch}.steps.parquet",
+        episodes=f"{paths.SWEEP}.episodes.parquet",
+        steps=f"{paths.SWEEP}.steps.parquet",
     log:
         "results/logs/sweep/{exp}_epoch_{epoch}.log",
     benchmark:
@@ -53,9 +53,9 @@ rule sweep:
 rule best:
     input:
         sweep=lambda w: sweep_outputs(w.exp),
-        train_log="results/runs/{exp}/train_log.parquet",
+        train_log=paths.TRAIN_LOG,
     output:
-        json="results/runs/{exp}/best.json",
+        json=paths.BEST,
     log:
         "results/logs/best/{exp}.log",
     benchmark:
@@ -72,10 +72,10 @@ rule best:
 use rule sweep as stability with:
     input:
         unpack(eval_inputs),
-        best="results/runs/{exp}/best.json",
+        best=paths.BEST,
     output:
-        episodes="results/runs/{exp}/stability/run_{run}.episodes.parquet",
-        steps="results/runs/{exp}/stability/run_{run}.steps.parquet",
+        episodes=f"{paths.STABILITY}.episodes.parquet",
+        steps=f"{paths.STABILITY}.steps.parquet",
     log:
         "results/logs/stability/{exp}_run_{run}.log",
     benchmark:
@@ -89,8 +89,8 @@ use rule sweep as stability with:
 
 use rule stability as failure_run with:
     output:
-        episodes="results/runs/{exp}/failure_run.episodes.parquet",
-        steps="results/runs/{exp}/failure_run.steps.parquet",
+        episodes=f"{paths.FAILURE_RUN}.episodes.parquet",
+        steps=f"{paths.FAILURE_RUN}.steps.parquet",
     log:
         "results/logs/failure_run/{exp}.log",
     benchmark:
@@ -102,8 +102,8 @@ use rule stability as failure_run with:
 
 use rule stability as train_seed_run with:
     output:
-        episodes="results/runs/{exp}/train_seeds.episodes.parquet",
-        steps="results/runs/{exp}/train_seeds.steps.parquet",
+        episodes=f"{paths.TRAIN_SEEDS}.episodes.parquet",
+        steps=f"{paths.TRAIN_SEEDS}.steps.parquet",
     log:
         "results/logs/train_seed_run/{exp}.log",
     benchmark:
@@ -117,7 +117,7 @@ rule failures:
     input:
         episodes=lambda w: failure_inputs(w.exp),
     output:
-        classes="results/runs/{exp}/failures.parquet",
+        classes=paths.FAILURES,
     log:
         "results/logs/failures/{exp}.log",
     benchmark:
@@ -140,8 +140,8 @@ rule table:
     input:
         lambda w: study.inputs(config, w.table),
     output:
-        csv=report("results/tables/{table}.csv", category="Tables", labels={"table": "{table}"}),
-        md="results/tables/{table}.md",
+        csv=report(f"{paths.TABLE}.csv", category="Tables", labels={"table": "{table}"}),
+        md=f"{paths.TABLE}.md",
     log:
         "results/logs/tables/{table}.log",
     benchmark:
@@ -164,7 +164,7 @@ rule figure:
     input:
         lambda w: study.inputs(config, *study.FIGURES[w.figure]),
     output:
-        png=report("results/figures/{figure}.png", category="Figures", labels={"figure": "{figure}"}),
+        png=report(paths.FIGURE, category="Figures", labels={"figure": "{figure}"}),
     log:
         "results/logs/figures/{figure}.log",
     benchmark:
@@ -187,12 +187,12 @@ rule figures5_1_to_5_3:
         study.inputs(config, "table5_1", study.SPATIAL_FIGURES_NEEDS),
     output:
         fig5_1=report(
-            "results/figures/fig5_1.png",
+            paths.FIGURE.format(figure="fig5_1"),
             category="Figures",
             labels={"figure": "5.1 training loss and evaluation reward"},
         ),
-        fig5_2=report("results/figures/fig5_2.png", category="Figures", labels={"figure": "5.2 episode length"}),
-        fig5_3=report("results/figures/fig5_3.png", category="Figures", labels={"figure": "5.3 failure counts"}),
+        fig5_2=report(paths.FIGURE.format(figure="fig5_2"), category="Figures", labels={"figure": "5.2 episode length"}),
+        fig5_3=report(paths.FIGURE.format(figure="fig5_3"), category="Figures", labels={"figure": "5.3 failure counts"}),
     log:
         "results/logs/figures/fig5_1_to_5_3.log",
     benchmark:

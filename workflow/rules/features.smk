@@ -4,10 +4,10 @@
 
 rule features:
     input:
-        frames="results/frames/{task}_{cams}_{res}.zarr",
+        frames=paths.FRAMES_STORE,
         ckpt=lambda w: encoder_checkpoint(w.encoder),
     output:
-        store=directory("results/features/{task}_{cams}_{res}_{encoder}.zarr"),
+        store=directory(paths.FEATURES_STORE),
     log:
         "results/logs/features/{task}_{cams}_{res}_{encoder}.log",
     benchmark:
@@ -26,10 +26,10 @@ rule features:
 
 rule features_diagnostics:
     input:
-        frames="results/frames/{task}_{cams}_{res}.zarr",
-        features="results/features/{task}_{cams}_{res}_{encoder}.zarr",
+        frames=paths.FRAMES_STORE,
+        features=paths.FEATURES_STORE,
     output:
-        json="results/features/{task}_{cams}_{res}_{encoder}.diagnostics.json",
+        json=paths.FEATURES_DIAGNOSTICS,
     log:
         "results/logs/features_diagnostics/{task}_{cams}_{res}_{encoder}.log",
     benchmark:
@@ -51,10 +51,10 @@ rule features_diagnostics:
 
 rule attention_maps:
     input:
-        frames="results/frames/{task}_{cams}_{res}.zarr",
-        features="results/features/{task}_{cams}_{res}_{encoder}.zarr",
+        frames=paths.FRAMES_STORE,
+        features=paths.FEATURES_STORE,
     output:
-        png="results/figures/attention_{task}_{cams}_{res}_{encoder}.png",
+        png=paths.ATTENTION_FIGURE,
     log:
         "results/logs/attention_maps/{task}_{cams}_{res}_{encoder}.log",
     benchmark:

@@ -4,11 +4,11 @@
 
 rule frames_shard:
     input:
-        h5="results/demos/{task}.h5",
-        json="results/demos/{task}.json",
+        h5=f"{paths.DEMOS}.h5",
+        json=f"{paths.DEMOS}.json",
     output:
-        store=temp(directory("results/frames/shards/{task}_{cams}_{res}/shard{shard}.zarr")),
-        stats="results/frames/shards/{task}_{cams}_{res}/shard{shard}.json",
+        store=temp(directory(f"{paths.FRAMES_SHARD}.zarr")),
+        stats=f"{paths.FRAMES_SHARD}.json",
     log:
         "results/logs/frames_shard/{task}_{cams}_{res}_shard{shard}.log",
     benchmark:
@@ -27,11 +27,12 @@ rule frames_shard:
 rule frames_merge:
     input:
         stores=expand(
-            "results/frames/shards/{{task}}_{{cams}}_{{res}}/shard{shard}.zarr",
+            f"{paths.FRAMES_SHARD}.zarr",
             shard=range(config["frames"]["shards"]),
+            allow_missing=True,
         ),
     output:
-        store=directory("results/frames/{task}_{cams}_{res}.zarr"),
+        store=directory(paths.FRAMES_STORE),
     log:
         "results/logs/frames_merge/{task}_{cams}_{res}.log",
     benchmark:
@@ -49,14 +50,15 @@ rule frames_merge:
 
 rule frames_report:
     input:
-        store="results/frames/{task}_{cams}_{res}.zarr",
+        store=paths.FRAMES_STORE,
         stats=expand(
-            "results/frames/shards/{{task}}_{{cams}}_{{res}}/shard{shard}.json",
+            f"{paths.FRAMES_SHARD}.json",
             shard=range(config["frames"]["shards"]),
+            allow_missing=True,
         ),
     output:
-        json="results/frames/{task}_{cams}_{res}.report.json",
-        png="results/frames/{task}_{cams}_{res}.contact.png",
+        json=paths.FRAMES_REPORT,
+        png=paths.FRAMES_CONTACT,
     log:
         "results/logs/frames_report/{task}_{cams}_{res}.log",
     benchmark:

@@ -3,11 +3,11 @@
 
 rule train:
     input:
-        features=lambda w: f"results/features/{_exp.features_store(policy_of(w))}.zarr",
-        frames=lambda w: f"results/frames/{_exp.frames_store(policy_of(w))}.zarr",
+        features=lambda w: paths.features_store(_exp.features_store(policy_of(w))),
+        frames=lambda w: paths.frames_store(_exp.frames_store(policy_of(w))),
     output:
-        checkpoints=directory("results/runs/{exp}/checkpoints"),
-        log="results/runs/{exp}/train_log.parquet",
+        checkpoints=directory(paths.CHECKPOINTS),
+        log=paths.TRAIN_LOG,
     log:
         "results/logs/train/{exp}.log",
     benchmark:

@@ -1,0 +1,68 @@
+"""Where every artifact lives: the one source of path patterns, read by the rule files (as wildcard patterns) and
+by the code that finds a run's files (filled in with ``str.format``).
+
+Fields: ``task`` (PickCube-v1, ...), ``cams`` (dual | native), ``res`` (pixels), ``encoder``, ``shard``, ``exp``
+(an experiment of config ``experiments``), ``epoch`` (4 digits), ``run`` (a stability run), ``table``, ``figure``.
+A frames store's name ``{task}_{cams}_{res}`` is what config `encoders.slots_ssl.train_stores` lists."""
+
+from __future__ import annotations
+
+RESULTS = "results"
+
+# demos: one .h5 of trajectories, its .json of episode metadata and a .report.json per task (and per shard)
+DEMO_SHARD = RESULTS + "/demos/shards/{task}/shard{shard}"
+DEMOS = RESULTS + "/demos/{task}"
+
+# frames: replayed, rendered episodes (the contract in README "Frames store contract")
+FRAMES_SHARD = RESULTS + "/frames/shards/{task}_{cams}_{res}/shard{shard}"
+FRAMES_STORE = RESULTS + "/frames/{task}_{cams}_{res}.zarr"
+FRAMES_REPORT = RESULTS + "/frames/{task}_{cams}_{res}.report.json"
+FRAMES_CONTACT = RESULTS + "/frames/{task}_{cams}_{res}.contact.png"
+
+# frozen encoders trained by the workflow
+SLOTS_SSL = RESULTS + "/encoders/slots_ssl"
+SPOT_SLOTS = RESULTS + "/encoders/spot"
+
+# features: one store per (frames store, encoder), with its diagnostics and attention maps
+FEATURES_STORE = RESULTS + "/features/{task}_{cams}_{res}_{encoder}.zarr"
+FEATURES_DIAGNOSTICS = RESULTS + "/features/{task}_{cams}_{res}_{encoder}.diagnostics.json"
+ATTENTION_FIGURE = RESULTS + "/figures/attention_{task}_{cams}_{res}_{encoder}.png"
+
+# one folder per experiment: training, then evaluation
+RUN = RESULTS + "/runs/{exp}"
+CHECKPOINTS = RUN + "/checkpoints"
+TRAIN_LOG = RUN + "/train_log.parquet"
+SWEEP = RUN + "/sweep/epoch_{epoch}"  # .episodes.parquet and .steps.parquet
+BEST = RUN + "/best.json"
+STABILITY = RUN + "/stability/run_{run}"  # .episodes.parquet and .steps.parquet
+FAILURE_RUN = RUN + "/failure_run"
+TRAIN_SEEDS = RUN + "/train_seeds"
+FAILURES = RUN + "/failures.parquet"
+
+TABLE = RESULTS + "/tables/{table}"  # .csv and .md
+FIGURE = RESULTS + "/figures/{figure}.png"
+
+
+def store_name(task: str, cams: str, res: int) -> str:
+    """A frames store's name, as config and features store names use it."""
+    return f"{task}_{cams}_{res}"
+
+
+def frames_store(name: str) -> str:
+    """The frames store path of a store name ``{task}_{cams}_{res}``."""
+    return f"{RESULTS}/frames/{name}.zarr"
+
+
+def features_store(name: str) -> str:
+    """The features store path of a name ``{task}_{cams}_{res}_{encoder}``."""
+    return f"{RESULTS}/features/{name}.zarr"
+
+
+def features_diagnostics(name: str) -> str:
+    """The diagnostics report of a features store name ``{task}_{cams}_{res}_{encoder}``."""
+    return f"{RESULTS}/features/{name}.diagnostics.json"
+
+
+def in_runs(pattern: str, runs_dir, **fields) -> str:
+    """A RUN-relative pattern filled in, under another runs folder than results/runs when asked."""
+    return pattern.replace(RESULTS + "/runs", str(runs_dir), 1).format(**fields)
