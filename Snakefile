@@ -3,7 +3,7 @@
 import sys
 from pathlib import Path
 
-from ocpipe.config import ConfigError, validate
+from ocpipe.config.validate import ConfigError, validate
 
 
 configfile: Path(workflow.basedir) / "config" / "config.yaml"

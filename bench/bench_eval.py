@@ -47,9 +47,9 @@ def _timed(step, n: int) -> dict:
 def worker(mode: str, setting: dict, checkpoint: str, steps: int) -> dict:
     import torch
 
-    from ocpipe import config as cfgmod
-    from ocpipe import sim
-    from ocpipe.evaluation import ClosedLoop
+    from ocpipe.config import validate as cfgmod
+    from ocpipe.evaluation.closed_loop import ClosedLoop
+    from ocpipe.sim import envs as sim
 
     torch.set_num_threads(1)
     config = cfgmod.load(REPO / "config" / "config.yaml")

@@ -22,8 +22,8 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 
-from ocpipe import config as cfgmod  # noqa: E402
-from ocpipe import experiments  # noqa: E402
+from ocpipe.config import experiments  # noqa: E402
+from ocpipe.config import validate as cfgmod  # noqa: E402
 from ocpipe.policy.training import load_data  # noqa: E402
 from ocpipe.policy.windows import ChunkWindowLoader, make_batch  # noqa: E402
 

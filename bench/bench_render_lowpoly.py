@@ -52,8 +52,8 @@ def main(argv=None) -> None:
     import numpy as np
     import torch
 
-    from ocpipe import config as cfgmod
-    from ocpipe import sim
+    from ocpipe.config import validate as cfgmod
+    from ocpipe.sim import envs as sim
 
     torch.set_num_threads(1)
     base_cfg = cfgmod.load(args.config)

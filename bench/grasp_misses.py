@@ -17,9 +17,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ocpipe import config as cfgmod
-from ocpipe import evaluation, evaluation_jobs, experiments, sim
-from ocpipe.frames_store import open_store
+from ocpipe.config import experiments
+from ocpipe.config import validate as cfgmod
+from ocpipe.evaluation import closed_loop, jobs
+from ocpipe.frames.store import open_store
+from ocpipe.sim import envs as sim
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -58,7 +60,7 @@ def main() -> None:
     if args.demos:
         demo_grasps(frames_path)
     enc = results / "encoders" / "slots_ssl" / "model.pt" if policy["encoder"] == "slots_ssl" else None
-    loop = evaluation.ClosedLoop(args.checkpoint, config, frames_path, enc)
+    loop = closed_loop.ClosedLoop(args.checkpoint, config, frames_path, enc)
     beliefs: list[np.ndarray] = []
     forward = loop.model.forward
 
@@ -72,8 +74,8 @@ def main() -> None:
         return out
 
     loop.model.forward = forward_recording_aux
-    seeds = evaluation_jobs.seeds_for("stability", {**config["evaluation"], "stability_episodes": args.episodes},
-                                      config["seed"], 0)
+    seeds = jobs.seeds_for("stability", {**config["evaluation"], "stability_episodes": args.episodes},
+                           config["seed"], 0)
     rows = []
     try:
         for seed in seeds:

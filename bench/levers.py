@@ -22,8 +22,9 @@ import polars as pl
 import torch
 import yaml
 
-from ocpipe import config as cfgmod
-from ocpipe import evaluation, evaluation_jobs, experiments
+from ocpipe.config import experiments
+from ocpipe.config import validate as cfgmod
+from ocpipe.evaluation import closed_loop, jobs
 from ocpipe.policy.training import train
 
 REPO = Path(__file__).resolve().parents[1]
@@ -57,13 +58,12 @@ def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: in
     train_s = float(log["seconds"].sum())
     torch.set_num_threads(threads)
     ckpt = out_dir / "checkpoints" / f"epoch_{policy['epochs']:04d}.pt"
-    loop = evaluation.ClosedLoop(ckpt, config, results / "frames" / f"{experiments.frames_store(policy)}.zarr",
-                                 enc_ckpt)
-    seeds = evaluation_jobs.seeds_for("stability", {**config["evaluation"], "stability_episodes": episodes},
-                                      config["seed"], 0)
+    loop = closed_loop.ClosedLoop(ckpt, config, results / "frames" / f"{experiments.frames_store(policy)}.zarr",
+                                  enc_ckpt)
+    seeds = jobs.seeds_for("stability", {**config["evaluation"], "stability_episodes": episodes}, config["seed"], 0)
     t0 = time.perf_counter()
     try:
-        eps, _ = evaluation.run(loop, seeds, {"exp": label, "checkpoint": policy["epochs"], "run": 0})
+        eps, _ = closed_loop.run(loop, seeds, {"exp": label, "checkpoint": policy["epochs"], "run": 0})
     finally:
         loop.close()
     last = log.row(-1, named=True)
@@ -77,7 +77,7 @@ def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: in
         "val_gripper_agree": last.get("val_gripper_agree"),
         "episodes": len(eps),
         "successes": int(eps.filter(~pl.col("trivial"))["success"].sum()),
-        "sr": evaluation.success_rate(eps),
+        "sr": closed_loop.success_rate(eps),
         "mean_steps": float(eps["steps"].mean()),
         "eval_s": round(time.perf_counter() - t0, 1),
     }

@@ -2,7 +2,7 @@ from pathlib import Path
 
 import pytest
 
-from ocpipe import config as cfgmod
+from ocpipe.config import validate as cfgmod
 
 REPO = Path(__file__).resolve().parents[1]
 

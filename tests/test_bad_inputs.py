@@ -14,8 +14,12 @@ from fake_demos import write
 from policy_stores import policy_settings, write_stores
 from test_frames_store import write_shard
 
-from ocpipe import config as C
-from ocpipe import demos, evaluation, features, frames, frames_store, replay
+from ocpipe.config.validate import ConfigError, validate
+from ocpipe.demos import motion_planning as demos
+from ocpipe.evaluation import closed_loop
+from ocpipe.features import encode
+from ocpipe.frames import render, replay
+from ocpipe.frames import store as frames_store
 from ocpipe.policy.training import load_data
 
 
@@ -52,7 +56,7 @@ def test_truncated_demo_file_is_named_before_anything_runs(tmp_path, default_con
     assert not (tmp_path / "m.h5").exists() and not (tmp_path / "m.json").exists() and no_leftovers(tmp_path)
     # the frames stage checks the demo file before it builds a simulator
     with pytest.raises(demos.DemoError, match=rf"{a}: not a readable HDF5 file"):
-        frames.render_shard("PickCube-v1", "dual", 64, a, 0, 1, default_config, tmp_path / "s.zarr", progress=False)
+        render.render_shard("PickCube-v1", "dual", 64, a, 0, 1, default_config, tmp_path / "s.zarr", progress=False)
     assert not (tmp_path / "s.zarr").exists() and no_leftovers(tmp_path)
     # so does importing an official file
     with pytest.raises(demos.DemoError, match=rf"{a}: not a readable HDF5 file"):
@@ -147,7 +151,7 @@ def test_frames_store_missing_an_array_is_named(tmp_path):
     write_shard(store, [3, 2], 0)
     shutil.rmtree(store / "rgb")
     with pytest.raises(ValueError, match=rf"{store}: frames store is damaged: array 'rgb' missing.*delete it"):
-        features.encode_store(TinyEncoder(), store, tmp_path / "out.zarr", 2, 2, progress=False, device="cpu")
+        encode.encode_store(TinyEncoder(), store, tmp_path / "out.zarr", 2, 2, progress=False, device="cpu")
     assert not (tmp_path / "out.zarr").exists() and no_leftovers(tmp_path)
 
 
@@ -157,7 +161,7 @@ def test_frames_store_array_of_the_wrong_shape_is_named(tmp_path):
     replace_array(store, "rgb", np.zeros((5, 2, 32, 32), np.uint8))  # no colour axis
     with pytest.raises(ValueError, match=rf"{store}: frames store is damaged: rgb has shape \(5, 2, 32, 32\), "
                                          r"expected \(5, 2, 32, 32, 3\)"):
-        features.encode_store(TinyEncoder(), store, tmp_path / "out.zarr", 2, 2, progress=False, device="cpu")
+        encode.encode_store(TinyEncoder(), store, tmp_path / "out.zarr", 2, 2, progress=False, device="cpu")
     with pytest.raises(ValueError, match=rf"{store}: frames store is damaged: rgb has shape"):
         frames_store.merge([store], tmp_path / "m.zarr", 4)
     assert not (tmp_path / "out.zarr").exists() and not (tmp_path / "m.zarr").exists() and no_leftovers(tmp_path)
@@ -188,7 +192,7 @@ def stamp_provenance(feats, store):
     fa = zarr.open_group(str(store), mode="r").attrs.asdict()
     g = zarr.open_group(str(feats), mode="a")
     g.attrs.update({"frames_store": str(store),
-                    "frames_store_attrs": {k: fa[k] for k in features.PROVENANCE_KEYS if k in fa}})
+                    "frames_store_attrs": {k: fa[k] for k in encode.PROVENANCE_KEYS if k in fa}})
 
 
 def test_features_of_another_frames_store_are_refused(tmp_path):
@@ -219,31 +223,31 @@ def test_checkpoint_of_another_task_or_encoder_is_refused_before_the_simulator_s
     enc_ckpt = tmp_path / "model.pt"
     enc_ckpt.write_bytes(b"encoder weights")
     policy = policy_settings(resolution=32, name="exp")
-    meta = {"encoder": "slots_ssl", "encoder_checkpoint_sha256": features.sha256(enc_ckpt)}
-    evaluation.check_checkpoint(ckpt, policy, meta, store, enc_ckpt, expected=policy)  # all agree
+    meta = {"encoder": "slots_ssl", "encoder_checkpoint_sha256": encode.sha256(enc_ckpt)}
+    closed_loop.check_checkpoint(ckpt, policy, meta, store, enc_ckpt, expected=policy)  # all agree
 
     other_task = dict(policy, task="StackCube-v1")
     with pytest.raises(ValueError, match=rf"{ckpt}: trained for task 'StackCube-v1'.*{store} is a frames store of "
                                          r"task 'PickCube-v1'"):
-        evaluation.check_checkpoint(ckpt, other_task, meta, store, enc_ckpt)
+        closed_loop.check_checkpoint(ckpt, other_task, meta, store, enc_ckpt)
     with pytest.raises(ValueError, match=rf"{ckpt}: trained for task 'StackCube-v1', but experiment 'exp' has "
                                          r"task 'PickCube-v1'.*retrain"):
-        evaluation.check_checkpoint(ckpt, other_task, meta, tmp_path / "nostore.zarr", enc_ckpt, expected=policy)
+        closed_loop.check_checkpoint(ckpt, other_task, meta, tmp_path / "nostore.zarr", enc_ckpt, expected=policy)
     with pytest.raises(ValueError, match=rf"{ckpt}: trained for resolution 64.*resolution 32"):
-        evaluation.check_checkpoint(ckpt, dict(policy, resolution=64), meta, store, enc_ckpt)
+        closed_loop.check_checkpoint(ckpt, dict(policy, resolution=64), meta, store, enc_ckpt)
 
     dino = dict(policy, encoder="dino_cls")
     with pytest.raises(ValueError, match=rf"{ckpt}: trained for encoder 'dino_cls', but experiment 'exp' has "
                                          r"encoder 'slots_ssl'"):
-        evaluation.check_checkpoint(ckpt, dino, dict(meta, encoder="dino_cls"), store, None, expected=policy)
+        closed_loop.check_checkpoint(ckpt, dino, dict(meta, encoder="dino_cls"), store, None, expected=policy)
     with pytest.raises(ValueError, match=rf"{ckpt}: its policy names encoder 'dino_cls' but it was trained on "
                                          r"'slots_ssl' features"):
-        evaluation.check_checkpoint(ckpt, dino, meta, store, None)
+        closed_loop.check_checkpoint(ckpt, dino, meta, store, None)
     other_weights = tmp_path / "other.pt"
     other_weights.write_bytes(b"other weights")
     with pytest.raises(ValueError, match=rf"{other_weights} is not the encoder checkpoint that {ckpt} was trained "
                                          r"on \(sha256 differs\)"):
-        evaluation.check_checkpoint(ckpt, policy, meta, store, other_weights)
+        closed_loop.check_checkpoint(ckpt, policy, meta, store, other_weights)
 
 
 # 6. a config whose experiment names an unknown key --------------------------------------------------------------
@@ -253,15 +257,15 @@ def test_unknown_experiment_key_is_named_with_a_suggestion(default_config):
     cfg = copy.deepcopy(default_config)
     name = next(iter(cfg["experiments"]))
     cfg["experiments"][name] = dict(cfg["experiments"][name] or {}, lrr=0.1)
-    with pytest.raises(C.ConfigError) as exc:
-        C.validate(cfg)
+    with pytest.raises(ConfigError) as exc:
+        validate(cfg)
     msg = str(exc.value)
     assert f"experiments.{name}.lrr: unknown key; did you mean 'lr'?" in msg
     assert "allowed keys:" in msg and "'epochs'" in msg
     cfg = copy.deepcopy(default_config)
     cfg["policy"]["windw"] = 3
-    with pytest.raises(C.ConfigError, match=r"policy.windw: unknown key; did you mean 'window'\?"):
-        C.validate(cfg)
+    with pytest.raises(ConfigError, match=r"policy.windw: unknown key; did you mean 'window'\?"):
+        validate(cfg)
 
 
 # 7. a full disk while a store is written ------------------------------------------------------------------------
@@ -300,7 +304,7 @@ def test_full_disk_while_encoding_features_leaves_nothing(tmp_path, monkeypatch)
     out = tmp_path / "feats.zarr"
     disk_full_on_call(monkeypatch, zarr.Array, "__setitem__", 1)  # after the arrays were created
     with pytest.raises(OSError, match=rf"{out}"):
-        features.encode_store(TinyEncoder(), store, out, 2, 2, progress=False, device="cpu")
+        encode.encode_store(TinyEncoder(), store, out, 2, 2, progress=False, device="cpu")
     assert not out.exists() and no_leftovers(tmp_path)
 
 

@@ -4,7 +4,7 @@ import pytest
 import yaml
 from conftest import REPO
 
-from ocpipe import config as C
+from ocpipe.config import validate as C
 
 
 def test_default_and_thesis_profiles_validate():

@@ -3,7 +3,8 @@
 import yaml
 from conftest import REPO
 
-from ocpipe import cli, config_docs
+from ocpipe import cli
+from ocpipe.config import docs as config_docs
 
 SCHEMA = REPO / "workflow" / "schemas" / "config.schema.yaml"
 

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from fake_demos import write
 
-from ocpipe import demos, replay
+from ocpipe.demos import motion_planning as demos
+from ocpipe.frames import replay
 
 LEX_ORDER = sorted(range(12), key=lambda i: f"traj_{i}")  # 0, 1, 10, 11, 2, ...
 

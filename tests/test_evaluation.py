@@ -2,8 +2,9 @@ import numpy as np
 import polars as pl
 import pytest
 
-from ocpipe import evaluation, evaluation_jobs, report, tables, taxonomy
-from ocpipe.config import ConfigError, validate
+from ocpipe.config.validate import ConfigError, validate
+from ocpipe.evaluation import closed_loop, jobs, taxonomy
+from ocpipe.study import report, tables
 
 RULES = {"idle_variance": 0.001, "near_miss_m": 0.10, "stack_near_m": 0.10, "lift_m": 0.02}
 
@@ -82,14 +83,14 @@ EVAL = {
 
 
 def test_held_out_seeds_are_deterministic_distinct_and_inside_the_pool():
-    a = evaluation_jobs.seeds_for("stability", EVAL, 0, run=1)
-    assert a == evaluation_jobs.seeds_for("stability", EVAL, 0, run=1)
-    assert a != evaluation_jobs.seeds_for("stability", EVAL, 0, run=2)
-    assert a != evaluation_jobs.seeds_for("stability", EVAL, 1, run=1)
+    a = jobs.seeds_for("stability", EVAL, 0, run=1)
+    assert a == jobs.seeds_for("stability", EVAL, 0, run=1)
+    assert a != jobs.seeds_for("stability", EVAL, 0, run=2)
+    assert a != jobs.seeds_for("stability", EVAL, 1, run=1)
     assert len(set(a)) == 30 and min(a) >= 10000 and max(a) < 11000
-    assert len(evaluation_jobs.seeds_for("sweep", EVAL, 0)) == 20
+    assert len(jobs.seeds_for("sweep", EVAL, 0)) == 20
     with pytest.raises(ValueError, match="seed_pool_size"):
-        evaluation.sample_seeds(EVAL, 1001, 0)
+        closed_loop.sample_seeds(EVAL, 1001, 0)
 
 
 def test_demo_seeds_may_not_reach_into_the_evaluation_pool(default_config):
@@ -122,7 +123,7 @@ def episodes(run, successes, steps_, trivial=None):
 
 def test_trivial_successes_count_in_neither_numerator_nor_total():
     eps = episodes(0, [True, True, False, False], [5, 50, 100, 100], trivial=[True, False, False, False])
-    assert evaluation.success_rate(eps) == pytest.approx(1 / 3)
+    assert closed_loop.success_rate(eps) == pytest.approx(1 / 3)
 
 
 def test_table5_1_from_known_rows():
@@ -158,12 +159,12 @@ def test_best_checkpoint_prefers_sr_then_return(tmp_path):
             pl.lit(epoch).alias("checkpoint"), pl.lit(ret).alias("return")
         ).write_parquet(f)
         files.append(f)
-    assert evaluation_jobs.best_checkpoint(files)["epoch"] == 20
+    assert jobs.best_checkpoint(files)["epoch"] == 20
     log = tmp_path / "train_log.parquet"
     pl.DataFrame(
         {"epoch": [10, 20, 30], "val_joint_err_rad": [0.3, 0.2, 0.1], "val_gripper_agree": [0.7, 0.8, 0.9]}
     ).write_parquet(log)
-    sweep = {r["checkpoint"]: r for r in evaluation_jobs.best_checkpoint(files, log)["sweep"]}
+    sweep = {r["checkpoint"]: r for r in jobs.best_checkpoint(files, log)["sweep"]}
     assert sweep[20]["val_joint_err_rad"] == 0.2 and sweep[30]["val_gripper_agree"] == 0.9
 
 
@@ -188,7 +189,7 @@ def test_report_writes_tables_from_run_files(tmp_path, default_config):
 def test_temporal_ensemble_weights_older_chunks_more_and_votes_the_gripper():
     from collections import deque
 
-    from ocpipe.evaluation import ensemble_action
+    from ocpipe.evaluation.closed_loop import ensemble_action
 
     old = np.zeros((4, 8), np.float32)
     old[:, 7] = 1.0

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 import zarr
 
-from ocpipe import frames_store as FS
-from ocpipe.atomic import atomic_path
+from ocpipe.frames import store as FS
+from ocpipe.util.atomic import atomic_path
 
 
 def fake_episode(T, C=2, R=32, seed=0):

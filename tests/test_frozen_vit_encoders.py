@@ -5,11 +5,11 @@ import pytest
 import torch
 from test_frames_store import write_shard
 
-from ocpipe import features
 from ocpipe.encoders import checkpoints as CK
 from ocpipe.encoders import dinosaur, registry
 from ocpipe.encoders.slot_attention import SlotAttention
 from ocpipe.encoders.vit import ViT
+from ocpipe.features import encode
 
 
 @pytest.fixture(scope="module")
@@ -37,17 +37,17 @@ def cfg(weights, **spot):
 @pytest.mark.parametrize("readout, tokens", [("cls", 1), ("grid4", 16), ("dense", 196)])
 def test_dino_readouts(weights, frames, tmp_path, readout, tokens):
     enc = registry.build(f"dino_{readout}", cfg(weights), frames)
-    features.encode_store(enc, frames, tmp_path / "f.zarr", batch_size=2, chunk_frames=2, progress=False)
-    out = features.open_features(tmp_path / "f.zarr")
+    encode.encode_store(enc, frames, tmp_path / "f.zarr", batch_size=2, chunk_frames=2, progress=False)
+    out = encode.open_features(tmp_path / "f.zarr")
     assert out["tokens"].shape == (3, 2, tokens, 768) and "masks" not in out
-    assert out.attrs["checkpoint_sha256"] == features.sha256(weights / "dino_vitbase16_pretrain.pth")
+    assert out.attrs["checkpoint_sha256"] == encode.sha256(weights / "dino_vitbase16_pretrain.pth")
     assert np.isfinite(out["tokens"][...].astype(np.float32)).all()
 
 
 def test_spot_from_its_checkpoint_gives_seven_slots_with_masks(weights, frames, tmp_path):
     enc = registry.build("spot", cfg(weights, checkpoint=str(weights / "checkpoint.pt.tar")), frames)
-    features.encode_store(enc, frames, tmp_path / "s.zarr", batch_size=3, chunk_frames=2, progress=False)
-    out = features.open_features(tmp_path / "s.zarr")
+    encode.encode_store(enc, frames, tmp_path / "s.zarr", batch_size=3, chunk_frames=2, progress=False)
+    out = encode.open_features(tmp_path / "s.zarr")
     assert out["tokens"].shape == (3, 2, 7, 256) and out["masks"].shape == (3, 2, 7, 14, 14)
     np.testing.assert_allclose(out["masks"][...].astype(np.float32).sum(2), 1.0, atol=5e-3)
 
@@ -64,7 +64,7 @@ def test_missing_weights_name_the_config_key(weights, frames):
 
 
 def test_slot_module_trained_on_frozen_dino_loads_as_spot(weights, frames, tmp_path):
-    from ocpipe.frames_store import open_store
+    from ocpipe.frames.store import open_store
 
     vit = CK.load_dino_vit(weights / "dino_vitbase16_pretrain.pth")
     images = dinosaur.frames_sample(open_store(frames), 3)

@@ -7,10 +7,10 @@ import torch
 from policy_stores import policy_settings, write_stores
 
 from ocpipe.encoders.state import state_tokens, yaw
+from ocpipe.features.slot_geometry import full_image_windows, slot_geometry
 from ocpipe.policy import normalization
 from ocpipe.policy.training import load_data, load_policy, split_episodes, train
 from ocpipe.policy.windows import Labels, action_frames, make_batch
-from ocpipe.slot_geometry import full_image_windows, slot_geometry
 
 
 def _quat_z(angle):

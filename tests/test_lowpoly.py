@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from ocpipe import lowpoly, sim
+from ocpipe.sim import envs, lowpoly
 
 
 def _panda_urdf() -> Path:
@@ -87,13 +87,13 @@ def test_lowpoly_env_has_the_same_physics_and_segmentation(default_config, cache
     low, plain = copy.deepcopy(default_config), copy.deepcopy(default_config)
     low["sim"]["robot_visual_keep"], low["sim"]["ground_cells"] = 0.1, 2
     plain["sim"]["robot_visual_keep"], plain["sim"]["ground_cells"] = None, None  # as ManiSkill draws the scene
-    plain_env = sim.make_env("PickCube-v1", plain, "dual", 64)
-    low_env = sim.make_env("PickCube-v1", low, "dual", 64, obs_mode="rgb+segmentation")
+    plain_env = envs.make_env("PickCube-v1", plain, "dual", 64)
+    low_env = envs.make_env("PickCube-v1", low, "dual", 64, obs_mode="rgb+segmentation")
     try:
         u_plain, u_low = plain_env.unwrapped, low_env.unwrapped
-        assert type(u_plain) is sim._env_class("PickCube-v1")  # no keys: today's class
+        assert type(u_plain) is envs._env_class("PickCube-v1")  # no keys: today's class
         assert type(u_low).__mro__[1] is lowpoly.LowPolyAgentMixin
-        assert isinstance(u_low, sim._env_class("PickCube-v1"))
+        assert isinstance(u_low, envs._env_class("PickCube-v1"))
         assert Path(u_low.agent.urdf_path).is_relative_to(cache_home)
         assert ({i: o.name for i, o in u_plain.segmentation_id_map.items()}
                 == {i: o.name for i, o in u_low.segmentation_id_map.items()})
@@ -107,7 +107,7 @@ def test_lowpoly_env_has_the_same_physics_and_segmentation(default_config, cache
             action = torch.as_tensor(rng.uniform(-0.5, 0.5, (1, 8)), dtype=torch.float32)
             _, r_plain, *_ = plain_env.step(action)
             obs, r_low, *_ = low_env.step(action)
-            a, b = sim.task_readouts(plain_env), sim.task_readouts(low_env)
+            a, b = envs.task_readouts(plain_env), envs.task_readouts(low_env)
             for k in a:
                 np.testing.assert_array_equal(a[k], b[k], err_msg=k)
             assert torch.equal(r_plain, r_low)
@@ -121,9 +121,9 @@ def test_lowpoly_env_has_the_same_physics_and_segmentation(default_config, cache
 def test_camera_less_env_stays_plain(default_config):
     cfg = copy.deepcopy(default_config)
     cfg["sim"]["robot_visual_keep"], cfg["sim"]["ground_cells"] = 0.1, 2
-    env = sim.make_env("PickCube-v1", cfg, None)
+    env = envs.make_env("PickCube-v1", cfg, None)
     try:
-        assert type(env.unwrapped) is sim._env_class("PickCube-v1")
+        assert type(env.unwrapped) is envs._env_class("PickCube-v1")
     finally:
         env.close()
 

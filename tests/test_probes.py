@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from ocpipe import probes
+from ocpipe.features import probes
 
 
 def _store(rng, episodes=20, frames=40, informative=True):

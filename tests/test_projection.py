@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from ocpipe import projection as P
+from ocpipe.sim import projection as P
 
 
 def test_intrinsics_at_90_degrees_match_the_spec():

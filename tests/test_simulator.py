@@ -3,18 +3,18 @@
 import numpy as np
 import pytest
 
-from ocpipe import projection as P
-from ocpipe import sim
+from ocpipe.sim import envs
+from ocpipe.sim import projection as P
 
 
 @pytest.fixture(scope="module")
 def pick_env(request):
     from conftest import REPO
 
-    from ocpipe import config as C
+    from ocpipe.config import validate as C
 
     cfg = C.load(REPO / "config" / "config.yaml")
-    env = sim.make_env("PickCube-v1", cfg, "dual", 96)
+    env = envs.make_env("PickCube-v1", cfg, "dual", 96)
     obs, _ = env.reset(seed=10_001)
     yield cfg, env, obs
     env.close()
@@ -23,13 +23,13 @@ def pick_env(request):
 def test_simulator_matrices_match_the_configured_look_at_poses(pick_env):
     cfg, _, obs = pick_env
     for cam in ("base", "side"):
-        params = obs["sensor_param"][sim.SIM_CAMERA_UID[cam]]
+        params = obs["sensor_param"][envs.SIM_CAMERA_UID[cam]]
         spec = cfg["cameras"][cam]
         np.testing.assert_allclose(params["extrinsic_cv"][0].numpy(),
                                    P.extrinsic_look_at(spec["eye"], spec["target"]), atol=1e-5)
         np.testing.assert_allclose(params["intrinsic_cv"][0].numpy(), P.intrinsic_from_fov(96, spec["fov_deg"]),
                                    atol=1e-4)
-        assert obs["sensor_data"][sim.SIM_CAMERA_UID[cam]]["rgb"].shape == (1, 96, 96, 3)
+        assert obs["sensor_data"][envs.SIM_CAMERA_UID[cam]]["rgb"].shape == (1, 96, 96, 3)
 
 
 def test_only_the_requested_cameras_are_rendered(pick_env):
@@ -39,7 +39,7 @@ def test_only_the_requested_cameras_are_rendered(pick_env):
 
 def test_readouts_come_from_the_task(pick_env):
     _, env, _ = pick_env
-    r = sim.task_readouts(env)
+    r = envs.task_readouts(env)
     np.testing.assert_allclose(r["goal_pos"], env.unwrapped.goal_site.pose.p[0].numpy())
     np.testing.assert_allclose(r["obj_pos"], env.unwrapped.cube.pose.p[0].numpy())
     assert r["qpos"].shape == (9,) and r["is_grasped"] is False
@@ -48,6 +48,6 @@ def test_readouts_come_from_the_task(pick_env):
 def test_unknown_camera_set_and_task_are_named(pick_env):
     cfg = pick_env[0]
     with pytest.raises(ValueError, match="unknown camera set 'wrist'"):
-        sim.camera_specs(cfg, "wrist")
+        envs.camera_specs(cfg, "wrist")
     with pytest.raises(ValueError, match="unknown task 'PushCube-v1'"):
-        sim.make_env("PushCube-v1", cfg, "dual", 64)
+        envs.make_env("PushCube-v1", cfg, "dual", 64)

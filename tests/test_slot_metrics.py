@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from ocpipe import slot_metrics as SM
+from ocpipe.encoders import slot_metrics as SM
 
 
 def test_ari_is_one_for_relabelled_partitions_and_near_zero_for_random():

@@ -1,8 +1,8 @@
 import numpy as np
 import torch
 
-from ocpipe import projection as P
 from ocpipe.encoders import crop, ssl_slots
+from ocpipe.sim import projection as P
 
 
 def _scene_images(n=24, g=16, seed=0):

@@ -5,9 +5,9 @@ import h5py
 import numpy as np
 import torch
 
-from ocpipe import sim
 from ocpipe.encoders.state import state_tokens
-from ocpipe.replay import Replayer
+from ocpipe.frames.replay import Replayer
+from ocpipe.sim import envs
 
 
 def _save_states(group, states: dict, prefix=""):
@@ -29,13 +29,13 @@ def _stack(acc: dict, state: dict) -> None:
 def test_training_and_evaluation_tokens_agree_on_a_replayed_episode(tmp_path, default_config):
     seed, steps = 10_003, 12
     # evaluation side: the env the control runs in (no camera), tokens from the simulator's readouts
-    env = sim.make_env("PickCube-v1", default_config, None)
+    env = envs.make_env("PickCube-v1", default_config, None)
     env.reset(seed=seed)
     rng = np.random.default_rng(0)
     states, actions, eval_tokens, eval_tcp = {}, [], [], []
     for t in range(steps + 1):
         _stack(states, env.unwrapped.get_state_dict())
-        r = sim.task_readouts(env)
+        r = envs.task_readouts(env)
         if t == steps:
             break
         eval_tokens.append(state_tokens(r["obj_pos"], r["obj_quat"]))

@@ -6,8 +6,10 @@ import polars as pl
 import pytest
 import torch
 
-from ocpipe import evaluation_jobs, paths, report, study, tables
-from ocpipe.config import deep_merge
+from ocpipe import paths
+from ocpipe.config.validate import deep_merge
+from ocpipe.evaluation import jobs
+from ocpipe.study import report, tables, targets
 
 
 def episodes(run, successes, steps_=None):
@@ -18,28 +20,28 @@ def episodes(run, successes, steps_=None):
 
 
 def test_rows_needing_weights_are_reported_not_built(default_config):
-    skip = study.unavailable(default_config, "table5_4")
+    skip = targets.unavailable(default_config, "table5_4")
     assert set(skip) == {"DINO CLS", "DINO 4x4", "DINO 14x14 dense", "SPOT 14 slots"}
     assert "encoders.dino.checkpoint" in skip["DINO CLS"] and "encoders.spot" in skip["SPOT 14 slots"]
-    files = study.inputs(default_config, "table5_4")
+    files = targets.inputs(default_config, "table5_4")
     assert files and all("/goal2d/" in f for f in files)  # only the offline slots_ssl row is built
-    assert "dino_cls" not in study.experiments_of(default_config)
+    assert "dino_cls" not in targets.experiments_of(default_config)
 
 
 def test_given_weights_put_those_rows_in_the_graph(default_config, tmp_path):
     config = deep_merge(default_config, {"encoders": {"dino": {"checkpoint": str(tmp_path / "dino.pth")}}})
-    assert set(study.unavailable(config, "table5_4")) == {"SPOT 14 slots"}
-    assert any("/dino_dense/" in f for f in study.inputs(config, "table5_4"))
+    assert set(targets.unavailable(config, "table5_4")) == {"SPOT 14 slots"}
+    assert any("/dino_dense/" in f for f in targets.inputs(config, "table5_4"))
 
 
 def test_every_table_names_only_defined_experiments_and_known_needs(default_config):
-    assert set(default_config["tables"]) == set(study.TITLES)
-    for table in study.TITLES:
-        for exp in study.rows(default_config, table).values():
-            for need in study.NEEDS[table]:
-                assert study.artefacts(default_config, exp, need)
+    assert set(default_config["tables"]) == set(targets.TITLES)
+    for table in targets.TITLES:
+        for exp in targets.rows(default_config, table).values():
+            for need in targets.NEEDS[table]:
+                assert targets.artefacts(default_config, exp, need)
     with pytest.raises(ValueError, match="unknown table need"):
-        study.artefacts(default_config, "goal2d", "nonsense")
+        targets.artefacts(default_config, "goal2d", "nonsense")
 
 
 def test_representation_table_keeps_rows_without_weights_with_their_settings(default_config):
@@ -113,10 +115,10 @@ def test_figures_draw_rows_and_mark_missing_weights(default_config, tmp_path):
 
 def test_training_seed_runs_draw_from_the_demo_seeds(default_config):
     demo_seeds = list(range(0, 300, 3))
-    a = evaluation_jobs.seeds_for("train_seeds", default_config["evaluation"], 0, episode_seeds=demo_seeds)
-    assert a == evaluation_jobs.seeds_for("train_seeds", default_config["evaluation"], 0, episode_seeds=demo_seeds)
+    a = jobs.seeds_for("train_seeds", default_config["evaluation"], 0, episode_seeds=demo_seeds)
+    assert a == jobs.seeds_for("train_seeds", default_config["evaluation"], 0, episode_seeds=demo_seeds)
     assert len(a) == default_config["evaluation"]["stability_episodes"] and set(a) <= set(demo_seeds)
-    assert len(evaluation_jobs.seeds_for("train_seeds", default_config["evaluation"], 0, episode_seeds=[4, 7])) == 2
+    assert len(jobs.seeds_for("train_seeds", default_config["evaluation"], 0, episode_seeds=[4, 7])) == 2
 
 
 def test_stackcube_failure_table_always_has_grasp_no_stack(tmp_path):
@@ -127,8 +129,8 @@ def test_stackcube_failure_table_always_has_grasp_no_stack(tmp_path):
 
 
 def test_run_files_come_from_the_path_patterns_under_any_runs_folder(default_config):
-    assert study.artefacts(default_config, "goal2d", "best") == ["results/runs/goal2d/best.json"]
-    assert study.artefacts(default_config, "goal2d", "stability", runs_dir="/x/runs")[0] == (
+    assert targets.artefacts(default_config, "goal2d", "best") == ["results/runs/goal2d/best.json"]
+    assert targets.artefacts(default_config, "goal2d", "stability", runs_dir="/x/runs")[0] == (
         "/x/runs/goal2d/stability/run_0.episodes.parquet")
-    assert study.artefacts(default_config, "goal2d", "sweep")[-1] == (
+    assert targets.artefacts(default_config, "goal2d", "sweep")[-1] == (
         paths.SWEEP.format(exp="goal2d", epoch=f"{default_config['policy']['epochs']:04d}") + ".episodes.parquet")

@@ -11,7 +11,8 @@ import pytest
 import yaml
 from conftest import REPO
 
-from ocpipe import frames, frames_store
+from ocpipe.frames import render
+from ocpipe.frames import store as frames_store
 
 SNAKEMAKE = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile")]
 TINY = {
@@ -142,13 +143,13 @@ def test_failed_replay_names_the_episode_and_leaves_no_store(tiny_run, tmp_path,
         actions[-1, :7] = actions[0, :7] + 1.5
         actions[-1, 7] = -1.0
     out = tmp_path / "store.zarr"
-    with pytest.raises(frames.ReplayFailure, match=r"episode ids \[1\]"):
-        frames.render_shard("PickCube-v1", "dual", 64, demo, 0, 1, default_config, out, progress=False)
+    with pytest.raises(render.ReplayFailure, match=r"episode ids \[1\]"):
+        render.render_shard("PickCube-v1", "dual", 64, demo, 0, 1, default_config, out, progress=False)
     assert not out.exists() and not list(tmp_path.glob(".tmp-*"))
 
 
 def test_features_stores_hold_per_frame_tokens_and_masks(tiny_run):
-    from ocpipe.features import open_features, sha256
+    from ocpipe.features.encode import open_features, sha256
 
     res = tiny_run / "results"
     ckpt = res / "encoders" / "slots_ssl" / "model.pt"
@@ -175,15 +176,15 @@ def test_features_stores_hold_per_frame_tokens_and_masks(tiny_run):
 
 
 def test_encoding_is_deterministic(tiny_run, tmp_path):
-    from ocpipe import features
     from ocpipe.encoders import registry
+    from ocpipe.features import encode
 
     res = tiny_run / "results"
     frames = res / "frames" / "PickCube-v1_dual_64.zarr"
     enc = registry.build("slots_ssl", {}, frames, res / "encoders" / "slots_ssl" / "model.pt")
-    features.encode_store(enc, frames, tmp_path / "again.zarr", batch_size=32, chunk_frames=64, progress=False)
-    a = features.open_features(tmp_path / "again.zarr")
-    b = features.open_features(res / "features" / "PickCube-v1_dual_64_slots_ssl.zarr")
+    encode.encode_store(enc, frames, tmp_path / "again.zarr", batch_size=32, chunk_frames=64, progress=False)
+    a = encode.open_features(tmp_path / "again.zarr")
+    b = encode.open_features(res / "features" / "PickCube-v1_dual_64_slots_ssl.zarr")
     np.testing.assert_array_equal(a["tokens"][...], b["tokens"][...])
     np.testing.assert_array_equal(a["masks"][...], b["masks"][...])
 
@@ -276,7 +277,7 @@ def test_table5_1_end_to_end_and_identical_on_a_rerun(tiny_run, tmp_path):
 
 
 def test_summary_names_probes_and_open_loop_error(tiny_run):
-    from ocpipe.summary import summary_lines
+    from ocpipe.study.summary import summary_lines
 
     text = "\n".join(summary_lines(tiny_run / "results"))
     assert "position probes, median cm on 1 held-out episodes: obj mean" in text
@@ -287,8 +288,8 @@ def test_an_episode_is_the_same_in_a_fresh_env_and_after_other_episodes(tiny_run
     """Evaluation jobs may split a run's seeds any way: an episode must not depend on what the env ran before."""
     import polars as pl
 
-    from ocpipe import config as cfgmod
-    from ocpipe import evaluation
+    from ocpipe.config import validate as cfgmod
+    from ocpipe.evaluation import closed_loop
 
     res = tiny_run / "results"
     config = cfgmod.load(REPO / "config" / "config.yaml", tiny_run / "tiny.yaml")
@@ -296,10 +297,10 @@ def test_an_episode_is_the_same_in_a_fresh_env_and_after_other_episodes(tiny_run
             res / "frames" / "PickCube-v1_dual_64.zarr", res / "encoders" / "slots_ssl" / "model.pt")
     ids = {"exp": "goal2d", "checkpoint": 2, "run": 0}
     seeds = [10_003, 10_011]
-    loops = [evaluation.ClosedLoop(*args), evaluation.ClosedLoop(*args)]
+    loops = [closed_loop.ClosedLoop(*args), closed_loop.ClosedLoop(*args)]
     try:
-        both, both_steps = evaluation.run(loops[0], seeds, ids, progress=False)
-        alone, alone_steps = evaluation.run(loops[1], seeds[1:], ids, progress=False)
+        both, both_steps = closed_loop.run(loops[0], seeds, ids, progress=False)
+        alone, alone_steps = closed_loop.run(loops[1], seeds[1:], ids, progress=False)
     finally:
         for loop in loops:
             loop.close()

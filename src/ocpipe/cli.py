@@ -7,7 +7,7 @@ import argparse
 import json
 import sys
 
-from . import config as cfgmod
+from .config import validate
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -26,32 +26,32 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     if args.cmd == "config-docs":
-        from . import config_docs
+        from .config import docs
 
-        return config_docs.main(check=args.check)
+        return docs.main(check=args.check)
 
     if args.cmd == "summary":
-        from .summary import summary_lines
+        from .study.summary import summary_lines
 
         print("\n".join(summary_lines(args.results)))
         return 0
 
     if args.cmd == "check-config":
         try:
-            cfgmod.load(*args.files)
-        except cfgmod.ConfigError as err:
+            validate.load(*args.files)
+        except validate.ConfigError as err:
             print(f"ocpipe: {err}", file=sys.stderr)
             return 1
         print("ok: " + " + ".join(args.files))
         return 0
 
-    from . import frames_report, frames_store
+    from .frames import report, store
 
-    problems = frames_store.check_contract(args.store)
+    problems = store.check_contract(args.store)
     for problem in problems:
         print(f"contract: {problem}", file=sys.stderr)
     if not problems:
-        print(json.dumps(frames_report.summarize(args.store), indent=2))
+        print(json.dumps(report.summarize(args.store), indent=2))
     return 1 if problems else 0
 
 

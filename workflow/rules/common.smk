@@ -1,7 +1,8 @@
 # What the stage files share: wildcard constraints, config slices passed as params (so a change in one config
 # section reruns exactly the jobs that read it), target lists and every input function.
-from ocpipe import experiments as _exp
-from ocpipe import paths, study
+from ocpipe import paths
+from ocpipe.config import experiments as _exp
+from ocpipe.study import targets
 
 
 wildcard_constraints:
@@ -79,7 +80,7 @@ def features_targets(encoders=("slots_ssl",)):
 def experiment_encoding_targets():
     """Frames and features stores (with diagnostics and attention maps) of every experiment a table can run."""
     out = []
-    for exp in study.experiments_of(config):
+    for exp in targets.experiments_of(config):
         p = _exp.resolve(config, exp)
         store = _exp.frames_store(p)
         for f in [frames_files(store)[0], *_features_outputs(store, p["encoder"])]:
@@ -117,11 +118,11 @@ def eval_inputs(w):
 
 
 def sweep_outputs(exp):
-    return study.artefacts(config, exp, "sweep")
+    return targets.artefacts(config, exp, "sweep")
 
 
 def stability_outputs(exp):
-    return study.artefacts(config, exp, "stability")
+    return targets.artefacts(config, exp, "stability")
 
 
 def failure_inputs(exp):

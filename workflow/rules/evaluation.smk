@@ -1,7 +1,7 @@
 # Closed-loop evaluation (docs/study.md, Evaluation protocol): a sweep job per (experiment, checkpoint), the best
 # checkpoint, stability runs (one job each), training-seed runs, failure classification (docs/study.md, Failure
 # taxonomy), and the study's tables and figures (docs/study.md, Tables and figures).
-from ocpipe import study
+from ocpipe.study import targets
 
 
 localrules:
@@ -138,7 +138,7 @@ rule table:
     """Any of the study's tables 5.1-5.11 from its rows' experiments (config `tables`); rows whose encoder needs
     weights the config does not give say so instead of failing the table."""
     input:
-        lambda w: study.inputs(config, w.table),
+        lambda w: targets.inputs(config, w.table),
     output:
         csv=report(f"{paths.TABLE}.csv", category="Tables", labels={"table": "{table}"}),
         md=f"{paths.TABLE}.md",
@@ -147,7 +147,7 @@ rule table:
     benchmark:
         "results/benchmarks/tables/{table}.tsv"
     wildcard_constraints:
-        table="|".join(study.TITLES),
+        table="|".join(targets.TITLES),
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("light")
@@ -162,7 +162,7 @@ rule table:
 rule figure:
     """Figures 5.5 (SR by representation), 5.6 (failures by loss weighting) and 5.7 (StackCube funnel)."""
     input:
-        lambda w: study.inputs(config, *study.FIGURES[w.figure]),
+        lambda w: targets.inputs(config, *targets.FIGURES[w.figure]),
     output:
         png=report(paths.FIGURE, category="Figures", labels={"figure": "{figure}"}),
     log:
@@ -170,7 +170,7 @@ rule figure:
     benchmark:
         "results/benchmarks/figures/{figure}.tsv"
     wildcard_constraints:
-        figure="|".join(study.FIGURES),
+        figure="|".join(targets.FIGURES),
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("light")
@@ -184,7 +184,7 @@ rule figure:
 
 rule figures5_1_to_5_3:
     input:
-        study.inputs(config, "table5_1", study.SPATIAL_FIGURES_NEEDS),
+        targets.inputs(config, "table5_1", targets.SPATIAL_FIGURES_NEEDS),
     output:
         fig5_1=report(
             paths.FIGURE.format(figure="fig5_1"),

@@ -1,8 +1,9 @@
 import json
 from pathlib import Path
 
-from ocpipe import demos, runlog
+from ocpipe.demos import motion_planning
+from ocpipe.util import runlog
 
 with runlog.to_file(snakemake.log[0]):
     reports = [json.loads(Path(p).read_text()) for p in snakemake.input.reports]
-    demos.merge(snakemake.input.h5, snakemake.output.h5, reports, snakemake.output.report)
+    motion_planning.merge(snakemake.input.h5, snakemake.output.h5, reports, snakemake.output.report)

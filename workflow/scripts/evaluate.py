@@ -1,9 +1,10 @@
-from ocpipe import evaluation_jobs, runlog
+from ocpipe.evaluation import jobs
+from ocpipe.util import runlog
 
 w, p = snakemake.wildcards, snakemake.params
 config = {**p.cfg, "evaluation": p.evaluation}
 with runlog.to_file(snakemake.log[0]):
-    episodes = evaluation_jobs.run_job(
+    episodes = jobs.run_job(
         p.kind, w.exp, config, snakemake.input.checkpoints, snakemake.input.frames, snakemake.input.encoder,
         snakemake.output.episodes, snakemake.output.steps, p.seed, run=int(w.get("run", 0)),
         best_json=snakemake.input.get("best"), epoch=int(w.epoch) if "epoch" in w.keys() else None,

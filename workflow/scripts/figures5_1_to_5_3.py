@@ -1,4 +1,5 @@
-from ocpipe import report, runlog
+from ocpipe.study import report
+from ocpipe.util import runlog
 
 with runlog.to_file(snakemake.log[0]):
     o = snakemake.output

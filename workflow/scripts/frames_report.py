@@ -1,11 +1,12 @@
 import json
 from pathlib import Path
 
-from ocpipe import frames_report, runlog
+from ocpipe.frames import report
+from ocpipe.util import runlog
 
 with runlog.to_file(snakemake.log[0]):
     seconds = [json.loads(Path(p).read_text())["seconds"] for p in snakemake.input.stats]
     r = snakemake.params.report
-    summary = frames_report.write_report(snakemake.input.store, snakemake.output.json, snakemake.output.png,
-                                         r["contact_sheet_episodes"], r["contact_sheet_steps"], seconds)
+    summary = report.write_report(snakemake.input.store, snakemake.output.json, snakemake.output.png,
+                                  r["contact_sheet_episodes"], r["contact_sheet_steps"], seconds)
     print(json.dumps(summary, indent=2))

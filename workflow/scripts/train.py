@@ -1,7 +1,7 @@
 from pathlib import Path
 
-from ocpipe import runlog
 from ocpipe.policy import training
+from ocpipe.util import runlog
 
 with runlog.to_file(snakemake.log[0]):
     table = training.train(snakemake.params.policy, snakemake.params.seed, snakemake.input.features,

@@ -1,11 +1,11 @@
 import polars as pl
 import torch
 
-from ocpipe import runlog
-from ocpipe.atomic import atomic_path
-from ocpipe.devices import pick_device
 from ocpipe.encoders import checkpoints, dinosaur
-from ocpipe.frames_store import open_store
+from ocpipe.frames.store import open_store
+from ocpipe.util import runlog
+from ocpipe.util.atomic import atomic_path
+from ocpipe.util.devices import pick_device
 
 with runlog.to_file(snakemake.log[0]):
     spot = snakemake.params.spot

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..projection import project_points
+from ..sim.projection import project_points
 
 
 def workspace_corners(box_min, box_max) -> np.ndarray:

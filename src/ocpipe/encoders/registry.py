@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..frames_store import open_store
+from ..frames.store import open_store
 
 SLOT_ENCODERS = ("slots_ssl", "spot")
 DINO_READOUTS = ("cls", "grid4", "dense")

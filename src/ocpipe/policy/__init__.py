@@ -1,1 +1,2 @@
-"""The Autoregressive Multimodal Sequence Policy (docs/study.md, Policy): model, data windows, losses, training."""
+"""The Autoregressive Multimodal Sequence Policy (docs/study.md, Policy): model, data windows, losses, training.
+The policy stage (workflow/rules/policy.smk, rule `train`) runs `training.train` once per experiment."""

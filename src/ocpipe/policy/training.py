@@ -26,11 +26,11 @@ import polars as pl
 import torch
 from tqdm import tqdm
 
-from ..atomic import atomic_path
-from ..devices import pick_device
 from ..encoders.state import state_tokens
-from ..features import PolicyTokens, check_provenance, open_features
-from ..frames_store import open_store
+from ..features.encode import PolicyTokens, check_provenance, open_features
+from ..frames.store import open_store
+from ..util.atomic import atomic_path
+from ..util.devices import pick_device
 from . import normalization
 from .model import SequencePolicy, loss_terms
 from .weighting import loss_weights
@@ -176,7 +176,7 @@ def train(
     progress: bool = True,
     on_epoch_end=None,
 ) -> pl.DataFrame:
-    from ..experiments import saved_epochs
+    from ..config.experiments import saved_epochs
 
     torch.set_num_threads(threads)
     out_dir = Path(out_dir)

@@ -18,15 +18,15 @@ import polars as pl
 import torch
 from tqdm import tqdm
 
-from . import projection, sim
-from .devices import to_device
-from .encoders import registry
-from .encoders.state import state_tokens
-from .features import sha256
-from .frames_store import open_store
-from .policy import normalization
-from .policy.training import load_policy
-from .slot_geometry import full_image_windows, slot_geometry
+from ..encoders import registry
+from ..encoders.state import state_tokens
+from ..features.encode import sha256
+from ..features.slot_geometry import full_image_windows, slot_geometry
+from ..frames.store import open_store
+from ..policy import normalization
+from ..policy.training import load_policy
+from ..sim import envs, projection
+from ..util.devices import to_device
 
 log = logging.getLogger(__name__)
 
@@ -87,14 +87,14 @@ class ClosedLoop:
                                  self.device)
         self.reads_labels = getattr(self.encoder, "reads_labels", False)
         self.task = p["task"]
-        self.camera_names = list(sim.CAMERA_SETS[p["cams"]])
-        self.uids = [sim.SIM_CAMERA_UID[c] for c in self.camera_names]
+        self.camera_names = list(envs.CAMERA_SETS[p["cams"]])
+        self.uids = [envs.SIM_CAMERA_UID[c] for c in self.camera_names]
         # an encoder that reads the simulator's state needs no image: render nothing
-        self.env = sim.make_env(self.task, config, None if self.reads_labels else p["cams"], p["resolution"],
+        self.env = envs.make_env(self.task, config, None if self.reads_labels else p["cams"], p["resolution"],
                                 obs_mode="rgb")
         self.windows = getattr(self.encoder, "windows", full_image_windows(len(self.uids), p["resolution"]))
         self.residual = p.get("joint_targets", "absolute") == "residual"
-        self.approx_K, self.approx_E = sim.approx_camera_matrices(config, self.camera_names, p["resolution"])
+        self.approx_K, self.approx_E = envs.approx_camera_matrices(config, self.camera_names, p["resolution"])
         ev = config["evaluation"]
         self.cap = ev["episode_cap"][self.task]
         self.execute = min(ev["execute_actions"], p["horizon"])
@@ -133,7 +133,7 @@ class ClosedLoop:
 
     @torch.inference_mode()
     def _observe(self, obs) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:
-        labels = sim.task_readouts(self.env)
+        labels = envs.task_readouts(self.env)
         tokens = self._tokens(obs, labels)
         x = normalization.proprio_input(labels["qpos"], labels["tcp_pos"], self.policy["proprio"])
         proprio = normalization.proprio(x[None], self.stats)[0]

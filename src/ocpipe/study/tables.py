@@ -7,9 +7,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import polars as pl
 
-from . import taxonomy
-from .atomic import atomic_path
-from .evaluation import success_rate
+from ..evaluation import taxonomy
+from ..evaluation.closed_loop import success_rate
+from ..util.atomic import atomic_path
 
 TABLE5_2_CLASSES = ("Success", "Near Miss", "Drop", "No Grasp", "Idle", "Unknown")
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from . import probes
+from ..features import probes
 
 
 def _fmt(x, spec=".3f"):

@@ -15,7 +15,7 @@ import h5py
 import numpy as np
 from tqdm import tqdm
 
-from .atomic import atomic_path, write_json
+from ..util.atomic import atomic_path, write_json
 
 log = logging.getLogger(__name__)
 

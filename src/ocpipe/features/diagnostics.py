@@ -6,10 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import probes, slot_metrics
-from .decomposition import score_masks
-from .features import open_features
-from .frames_store import open_store
+from ..encoders import slot_metrics
+from ..encoders.decomposition import score_masks
+from ..frames.store import open_store
+from . import probes
+from .encode import open_features
 
 MAX_DIAGNOSTIC_FRAMES = 4000  # mask statistics on an evenly spaced sample: they are means, the sample is plenty
 

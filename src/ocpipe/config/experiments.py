@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .config import ConfigError
+from .validate import ConfigError
 
 
 def resolve(config: dict, name: str) -> dict:

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from . import evaluation
-from .atomic import atomic_path, write_json
-from .frames_store import open_store
+from ..frames.store import open_store
+from ..util.atomic import atomic_path, write_json
+from . import closed_loop
 
 # random streams for sample_seeds: (root seed, purpose[, run])
 SWEEP, STABILITY, FAILURE_RUN, TRAIN_SEEDS = 0, 1, 2, 3
@@ -26,11 +26,11 @@ def training_seeds(evaluation_cfg: dict, episode_seeds: list[int], seed: int) ->
 def seeds_for(kind: str, evaluation_cfg: dict, seed: int, run: int = 0,
               episode_seeds: list[int] | None = None) -> list[int]:
     if kind == "sweep":  # every checkpoint and experiment sees the same episodes: comparisons are paired
-        return evaluation.sample_seeds(evaluation_cfg, evaluation_cfg["sweep_episodes"], seed, SWEEP)
+        return closed_loop.sample_seeds(evaluation_cfg, evaluation_cfg["sweep_episodes"], seed, SWEEP)
     if kind == "stability":
-        return evaluation.sample_seeds(evaluation_cfg, evaluation_cfg["stability_episodes"], seed, STABILITY, run)
+        return closed_loop.sample_seeds(evaluation_cfg, evaluation_cfg["stability_episodes"], seed, STABILITY, run)
     if kind == "failure_run":
-        return evaluation.sample_seeds(evaluation_cfg, evaluation_cfg["failure_episodes"], seed, FAILURE_RUN)
+        return closed_loop.sample_seeds(evaluation_cfg, evaluation_cfg["failure_episodes"], seed, FAILURE_RUN)
     if kind == "train_seeds":
         return training_seeds(evaluation_cfg, episode_seeds or [], seed)
     raise ValueError(f"unknown evaluation kind {kind!r}")
@@ -48,7 +48,7 @@ def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None 
     rows = []
     for f in sweep_files:
         eps = pl.read_parquet(f)
-        row = {"checkpoint": int(eps["checkpoint"][0]), "sr": evaluation.success_rate(eps),
+        row = {"checkpoint": int(eps["checkpoint"][0]), "sr": closed_loop.success_rate(eps),
                "mean_return": float(eps["return"].mean()), "episodes": len(eps)}
         if log is not None:
             at = log.filter(pl.col("epoch") == row["checkpoint"])
@@ -70,15 +70,15 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
         raise FileNotFoundError(f"{ckpt}: experiment {exp} saved no checkpoint at epoch {epoch}")
     import torch
 
-    from .devices import pick_device
+    from ..util.devices import pick_device
 
     torch.set_num_threads(threads)
-    loop = evaluation.ClosedLoop(ckpt, config, frames, encoder_ckpt or None,
+    loop = closed_loop.ClosedLoop(ckpt, config, frames, encoder_ckpt or None,
                                  device=pick_device(config["evaluation"]["device"]), expected=policy)
     try:
         episode_seeds = list(open_store(frames).attrs["episode_seeds"]) if kind == "train_seeds" else None
         seeds = seeds_for(kind, config["evaluation"], seed, run, episode_seeds)
-        episodes, steps = evaluation.run(loop, seeds, {"exp": exp, "checkpoint": epoch, "run": run}, progress)
+        episodes, steps = closed_loop.run(loop, seeds, {"exp": exp, "checkpoint": epoch, "run": run}, progress)
     finally:
         loop.close()
     with atomic_path(out_steps) as tmp:

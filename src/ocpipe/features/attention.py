@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_path
-from .features import open_features
-from .frames_store import open_store
+from ..frames.store import open_store
+from ..util.atomic import atomic_path
+from .encode import open_features
 
 
 def _crop(img: np.ndarray, window) -> np.ndarray:

@@ -11,10 +11,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import polars as pl  # noqa: E402
 
-from .atomic import atomic_path  # noqa: E402
+from ..evaluation.taxonomy import FUNNEL, counts  # noqa: E402
+from ..evaluation.taxonomy import funnel as funnel_counts
+from ..util.atomic import atomic_path  # noqa: E402
 from .tables import TABLE5_2_CLASSES, stability_summary  # noqa: E402
-from .taxonomy import FUNNEL, counts  # noqa: E402
-from .taxonomy import funnel as funnel_counts
 
 
 def _save(fig, path) -> None:

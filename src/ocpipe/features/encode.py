@@ -20,9 +20,9 @@ import torch
 import zarr
 from tqdm import tqdm
 
-from .atomic import atomic_path
-from .devices import pick_device, to_device
-from .frames_store import open_store
+from ..frames.store import open_store
+from ..util.atomic import atomic_path
+from ..util.devices import pick_device, to_device
 from .slot_geometry import full_image_windows, slot_geometry
 
 

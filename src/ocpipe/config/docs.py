@@ -12,8 +12,8 @@ from typing import Any
 
 import yaml
 
-from .atomic import atomic_path
-from .config import REPO_ROOT, SCHEMA_PATH
+from ..util.atomic import atomic_path
+from .validate import REPO_ROOT, SCHEMA_PATH
 
 DEFAULTS_PATH = REPO_ROOT / "config" / "config.yaml"
 README_PATH = REPO_ROOT / "config" / "README.md"

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-from .atomic import atomic_path
+from ..util.atomic import atomic_path
 
 warnings.filterwarnings("ignore", message=".*numcodecs.*", category=UserWarning)
 

@@ -9,11 +9,11 @@ from pathlib import Path
 import polars as pl
 import torch
 
-from .atomic import atomic_path, write_json
+from ..frames.store import open_store
+from ..util.atomic import atomic_path, write_json
+from ..util.devices import pick_device
+from . import crop, ssl_slots
 from .decomposition import score_masks
-from .devices import pick_device
-from .encoders import crop, ssl_slots
-from .frames_store import open_store
 
 
 def _split(store, holdout: int) -> tuple[int, int]:

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import slot_metrics
-from .encoders import crop
+from . import crop, slot_metrics
 
 ROBOT_PREFIX = "panda"
 BACKGROUND = {"ground", "table-workspace"}

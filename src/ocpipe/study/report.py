@@ -7,10 +7,11 @@ from pathlib import Path
 
 import polars as pl
 
-from . import figures, study, tables, taxonomy
-from .atomic import atomic_path
-from .encoders.registry import tokens_per_camera
-from .experiments import resolve
+from ..config.experiments import resolve
+from ..encoders.registry import tokens_per_camera
+from ..evaluation import taxonomy
+from ..util.atomic import atomic_path
+from . import figures, tables, targets
 
 
 def _read(files) -> pl.DataFrame:
@@ -64,31 +65,31 @@ def _load(need: str, files: list[str]):
 
 def table_rows(config: dict, table: str, needs=None, runs_dir="results/runs") -> list[tables.Row]:
     """The rows of a table (or of a figure drawing a table's rows), each with the artefacts it reads."""
-    skip = study.unavailable(config, table)
+    skip = targets.unavailable(config, table)
     out = []
-    for label, exp in study.rows(config, table).items():
+    for label, exp in targets.rows(config, table).items():
         policy = resolve(config, exp)
         tokens = len(policy["cameras"]) * tokens_per_camera(policy["encoder"], config["encoders"])
         row = tables.Row(label, policy, status=skip.get(label), visual_tokens=tokens)
         if row.status is None:
-            row.data = {need: _load(need, study.artefacts(config, exp, need, runs_dir))
-                        for need in (study.NEEDS[table] if needs is None else needs)}
+            row.data = {need: _load(need, targets.artefacts(config, exp, need, runs_dir))
+                        for need in (targets.NEEDS[table] if needs is None else needs)}
         out.append(row)
     return out
 
 
 def write_table(config: dict, table: str, csv_path, md_path, runs_dir="results/runs") -> pl.DataFrame:
     rows = table_rows(config, table, runs_dir=runs_dir)
-    if study.NEEDS[table] == ("failures",):
+    if targets.NEEDS[table] == ("failures",):
         always = ("Grasp No Stack",) if table == "table5_11" else ()
         frame = tables.table5_2({r.label: r.data["failures"] for r in rows if r.status is None}, always)
     else:
         frame = tables.build(table, rows)
-    return _write(frame, csv_path, md_path, study.TITLES[table])
+    return _write(frame, csv_path, md_path, targets.TITLES[table])
 
 
 def write_figure(config: dict, figure: str, out_png, runs_dir="results/runs") -> None:
-    table, needs = study.FIGURES[figure]
+    table, needs = targets.FIGURES[figure]
     rows = table_rows(config, table, needs, runs_dir)
     if figure == "fig5_5":
         figures.sr_bars(rows, out_png, "Success rate by visual representation (mean ± std over stability runs)")
@@ -100,7 +101,7 @@ def write_figure(config: dict, figure: str, out_png, runs_dir="results/runs") ->
 
 
 def write_figures5_1_to_5_3(config: dict, fig5_1, fig5_2, fig5_3, runs_dir="results/runs") -> None:
-    rows = [r for r in table_rows(config, "table5_1", study.SPATIAL_FIGURES_NEEDS, runs_dir) if r.status is None]
+    rows = [r for r in table_rows(config, "table5_1", targets.SPATIAL_FIGURES_NEEDS, runs_dir) if r.status is None]
     figures.fig5_1({r.label: r.data["train_log"] for r in rows}, {r.label: r.data["sweep"] for r in rows}, fig5_1)
     figures.fig5_2({r.label: r.data["stability"] for r in rows}, fig5_2)
     figures.fig5_3({r.label: r.data["failures"] for r in rows}, fig5_3)

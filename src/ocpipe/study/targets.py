@@ -6,8 +6,8 @@ files the config does not give are reported as such instead of being built."""
 
 from __future__ import annotations
 
-from . import paths
-from .experiments import missing_weights, resolve, saved_epochs
+from .. import paths
+from ..config.experiments import missing_weights, resolve, saved_epochs
 
 TITLES = {
     "table5_1": "Table 5.1: spatial grounding (held-out SR, mean episode length)",

@@ -7,10 +7,10 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from .atomic import atomic_path
-from .demos import check_pair, open_h5
-from .frames_store import StoreWriter
+from ..demos.motion_planning import check_pair, open_h5
+from ..util.atomic import atomic_path
 from .replay import Replayer, select_episodes
+from .store import StoreWriter
 
 
 class ReplayFailure(RuntimeError):

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_path, write_json
-from .frames_store import open_store
+from ..util.atomic import atomic_path, write_json
+from .store import open_store
 
 
 def summarize(store_path: str | Path, render_seconds: list[float] | None = None) -> dict:

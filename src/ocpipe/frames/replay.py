@@ -14,8 +14,8 @@ import h5py
 import numpy as np
 import torch
 
-from . import projection, sim
-from .demos import episodes, unreadable_error
+from ..demos.motion_planning import episodes, unreadable_error
+from ..sim import envs, projection
 
 
 @dataclass
@@ -68,12 +68,12 @@ class Replayer:
 
     def __init__(self, task: str, config: dict, camera_set: str, resolution: int):
         self.task, self.camera_set, self.resolution = task, camera_set, resolution
-        self.cameras = list(sim.CAMERA_SETS[camera_set])
-        self.uids = [sim.SIM_CAMERA_UID[c] for c in self.cameras]
+        self.cameras = list(envs.CAMERA_SETS[camera_set])
+        self.uids = [envs.SIM_CAMERA_UID[c] for c in self.cameras]
         # segmentation rides along in the same render pass; the encoder stage scores slot masks against it
-        self.env = sim.make_env(task, config, camera_set, resolution, obs_mode="rgb+segmentation")
+        self.env = envs.make_env(task, config, camera_set, resolution, obs_mode="rgb+segmentation")
         self.segmentation_ids = {int(i): obj.name for i, obj in self.env.unwrapped.segmentation_id_map.items()}
-        self.approx_K, self.approx_E = sim.approx_camera_matrices(config, self.cameras, resolution)
+        self.approx_K, self.approx_E = envs.approx_camera_matrices(config, self.cameras, resolution)
 
     def close(self) -> None:
         self.env.close()
@@ -108,7 +108,7 @@ class Replayer:
             rows["seg"].append(np.stack([sensors[uid]["segmentation"][0, ..., 0].cpu().numpy() for uid in self.uids]))
             rows["cam_intrinsic"].append(np.stack([params[uid]["intrinsic_cv"][0].cpu().numpy() for uid in self.uids]))
             rows["cam_extrinsic"].append(np.stack([params[uid]["extrinsic_cv"][0].cpu().numpy() for uid in self.uids]))
-            for k, v in sim.task_readouts(self.env).items():
+            for k, v in envs.task_readouts(self.env).items():
                 rows[k].append(v)
             # step the physics without rendering an observation we would throw away
             u._step_action(torch.as_tensor(action[None], dtype=torch.float32))
