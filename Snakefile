@@ -3,7 +3,8 @@
 import sys
 from pathlib import Path
 
-from ocpipe.config.validate import ConfigError, validate
+from ocpipe.config.errors import ConfigError
+from ocpipe.config.validate import validate
 
 
 configfile: Path(workflow.basedir) / "config" / "config.yaml"

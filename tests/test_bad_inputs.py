@@ -14,8 +14,10 @@ from fake_demos import write
 from policy_stores import policy_settings, write_stores
 from test_frames_store import write_shard
 
-from ocpipe.config.validate import ConfigError, validate
-from ocpipe.demos import motion_planning as demos
+from ocpipe.config.errors import ConfigError
+from ocpipe.config.validate import validate
+from ocpipe.demos.files import DemoError, check_pair, episodes
+from ocpipe.demos.merge import import_official, merge
 from ocpipe.evaluation import closed_loop
 from ocpipe.features import encode
 from ocpipe.frames import render, replay
@@ -49,18 +51,18 @@ def test_truncated_demo_file_is_named_before_anything_runs(tmp_path, default_con
     write(a, [0, 1, 2])
     write(b, [5, 6])
     truncate(a)
-    with pytest.raises(demos.DemoError, match=rf"{a}: not a readable HDF5 file.*truncated or corrupt.*delete"):
-        demos.check_pair(a)
-    with pytest.raises(demos.DemoError, match=rf"{a}: not a readable HDF5 file"):
-        demos.merge([a, b], tmp_path / "m.h5")
+    with pytest.raises(DemoError, match=rf"{a}: not a readable HDF5 file.*truncated or corrupt.*delete"):
+        check_pair(a)
+    with pytest.raises(DemoError, match=rf"{a}: not a readable HDF5 file"):
+        merge([a, b], tmp_path / "m.h5")
     assert not (tmp_path / "m.h5").exists() and not (tmp_path / "m.json").exists() and no_leftovers(tmp_path)
     # the frames stage checks the demo file before it builds a simulator
-    with pytest.raises(demos.DemoError, match=rf"{a}: not a readable HDF5 file"):
+    with pytest.raises(DemoError, match=rf"{a}: not a readable HDF5 file"):
         render.render_shard("PickCube-v1", "dual", 64, a, 0, 1, default_config, tmp_path / "s.zarr", progress=False)
     assert not (tmp_path / "s.zarr").exists() and no_leftovers(tmp_path)
     # so does importing an official file
-    with pytest.raises(demos.DemoError, match=rf"{a}: not a readable HDF5 file"):
-        demos.import_official(a, a.with_suffix(".json"), tmp_path / "i.h5", default_config, "PickCube-v1")
+    with pytest.raises(DemoError, match=rf"{a}: not a readable HDF5 file"):
+        import_official(a, a.with_suffix(".json"), tmp_path / "i.h5", default_config, "PickCube-v1")
     assert not (tmp_path / "i.h5").exists() and no_leftovers(tmp_path)
     assert b.is_file() and b.with_suffix(".json").is_file()  # inputs are never touched
 
@@ -70,12 +72,12 @@ def test_corrupt_trajectory_is_named_with_its_episode(tmp_path):
     write(a, [0, 1, 2, 3])
     write(b, [5, 6])
     scribble(a)
-    with pytest.raises(demos.DemoError, match=rf"{a}: episode \d \(traj_\d\) cannot be read.*corrupt.*delete"):
-        demos.merge([a, b], tmp_path / "m.h5")
+    with pytest.raises(DemoError, match=rf"{a}: episode \d \(traj_\d\) cannot be read.*corrupt.*delete"):
+        merge([a, b], tmp_path / "m.h5")
     assert not (tmp_path / "m.h5").exists() and no_leftovers(tmp_path)
-    eps = demos.episodes(a.with_suffix(".json"))
+    eps = episodes(a.with_suffix(".json"))
     with h5py.File(a, "r") as h5:
-        with pytest.raises(demos.DemoError, match=rf"{a}: episode \d \(traj_\d\) cannot be read"):
+        with pytest.raises(DemoError, match=rf"{a}: episode \d \(traj_\d\) cannot be read"):
             for ep in eps:
                 replay.read_episode(h5, ep)
 
@@ -84,8 +86,8 @@ def test_unreadable_demo_json_is_named(tmp_path):
     a = tmp_path / "a.h5"
     write(a, [0, 1])
     a.with_suffix(".json").write_text('{"episodes": [{"episode_id": 0,')
-    with pytest.raises(demos.DemoError, match=rf"{a.with_suffix('.json')}: not valid JSON"):
-        demos.episodes(a.with_suffix(".json"))
+    with pytest.raises(DemoError, match=rf"{a.with_suffix('.json')}: not valid JSON"):
+        episodes(a.with_suffix(".json"))
 
 
 # 2. a demos .json that does not match its .h5 -----------------------------------------------------------------
@@ -109,8 +111,8 @@ def test_json_that_does_not_match_its_h5_is_refused(tmp_path, change, words):
     write(a, [0, 1, 2])
     write(b, [5, 6])
     edit_json(a, change)
-    for call in (lambda: demos.check_pair(a), lambda: demos.merge([a, b], tmp_path / "m.h5")):
-        with pytest.raises(demos.DemoError) as exc:
+    for call in (lambda: check_pair(a), lambda: merge([a, b], tmp_path / "m.h5")):
+        with pytest.raises(DemoError) as exc:
             call()
         msg = str(exc.value)
         assert msg.startswith(f"{a} does not match {a.with_suffix('.json')}") and "delete a.h5 and a.json" in msg
@@ -123,8 +125,8 @@ def test_matching_pairs_still_merge(tmp_path):
     a, b = tmp_path / "a.h5", tmp_path / "b.h5"
     write(a, [0, 1, 2])
     write(b, [5, 6])
-    assert [e["episode_seed"] for e in demos.check_pair(a)] == [0, 1, 2]
-    assert demos.merge([a, b], tmp_path / "m.h5")["episodes"] == 5
+    assert [e["episode_seed"] for e in check_pair(a)] == [0, 1, 2]
+    assert merge([a, b], tmp_path / "m.h5")["episodes"] == 5
 
 
 # 3. a frames store missing an array, or an array of the wrong shape ---------------------------------------------
@@ -314,5 +316,5 @@ def test_full_disk_while_merging_demos_leaves_nothing(tmp_path, monkeypatch):
     write(b, [5, 6])
     disk_full_on_call(monkeypatch, h5py.Group, "copy", 3)
     with pytest.raises(OSError, match=r"No space left on device"):
-        demos.merge([a, b], tmp_path / "m.h5")
+        merge([a, b], tmp_path / "m.h5")
     assert not (tmp_path / "m.h5").exists() and not (tmp_path / "m.json").exists() and no_leftovers(tmp_path)

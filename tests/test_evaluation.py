@@ -2,7 +2,8 @@ import numpy as np
 import polars as pl
 import pytest
 
-from ocpipe.config.validate import ConfigError, validate
+from ocpipe.config.errors import ConfigError
+from ocpipe.config.validate import validate
 from ocpipe.evaluation import closed_loop, jobs, taxonomy
 from ocpipe.study import report, tables
 

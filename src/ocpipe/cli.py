@@ -8,6 +8,7 @@ import json
 import sys
 
 from .config import validate
+from .config.errors import ConfigError
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -39,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.cmd == "check-config":
         try:
             validate.load(*args.files)
-        except validate.ConfigError as err:
+        except ConfigError as err:
             print(f"ocpipe: {err}", file=sys.stderr)
             return 1
         print("ok: " + " + ".join(args.files))

@@ -1,8 +1,8 @@
-from ocpipe.demos import motion_planning
+from ocpipe.demos import merge
 from ocpipe.util import runlog
 from ocpipe.util.atomic import write_json
 
 with runlog.to_file(snakemake.log[0]):
-    report = motion_planning.import_official(snakemake.input.h5, snakemake.input.json, snakemake.output.h5,
-                                             snakemake.params.cfg, snakemake.wildcards.task)
+    report = merge.import_official(snakemake.input.h5, snakemake.input.json, snakemake.output.h5,
+                                   snakemake.params.cfg, snakemake.wildcards.task)
     write_json(snakemake.output.report, report)

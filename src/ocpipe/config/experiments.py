@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .validate import ConfigError
+from .errors import ConfigError
 
 
 def resolve(config: dict, name: str) -> dict:

@@ -9,12 +9,12 @@ from pathlib import Path
 import jsonschema
 import yaml
 
+from .errors import ConfigError
+from .experiments import problems as policy_problems
+from .experiments import resolve
+
 REPO_ROOT = Path(__file__).resolve().parents[3]
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
-
-
-class ConfigError(ValueError):
-    """A configuration value is missing or not allowed; the message names the key."""
 
 
 def deep_merge(base: dict, override: dict) -> dict:
@@ -132,9 +132,6 @@ def _cross_field_problems(config: dict) -> list[str]:
             problems.append(
                 f"  evaluation.{key}: {ev[key]} episodes > evaluation.seed_pool_size {ev['seed_pool_size']}"
             )
-    from .experiments import problems as policy_problems
-    from .experiments import resolve
-
     problems += policy_problems(config["policy"])
     for name in config["experiments"]:
         problems += [p for p in policy_problems(resolve(config, name)) if p not in problems]

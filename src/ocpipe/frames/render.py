@@ -7,7 +7,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from ..demos.motion_planning import check_pair, open_h5
+from ..demos.files import check_pair, open_h5
 from ..util.atomic import atomic_path
 from .replay import Replayer, select_episodes
 from .store import StoreWriter

@@ -14,7 +14,7 @@ import h5py
 import numpy as np
 import torch
 
-from ..demos.motion_planning import episodes, unreadable_error
+from ..demos.files import episodes, unreadable_error
 from ..sim import envs, projection
 
 
