@@ -47,7 +47,7 @@ rule sweep:
         **EVAL_PARAMS,
         kind="sweep",
     script:
-        "../scripts/evaluate.py"
+        "../scripts/sweep.py"
 
 
 rule best:

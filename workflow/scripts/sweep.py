@@ -1,3 +1,4 @@
+# rule sweep, and the rules derived from it (stability, failure_run, train_seed_run): one evaluation job
 from ocpipe.evaluation import jobs
 from ocpipe.util import runlog
 
