@@ -14,8 +14,7 @@ from fake_demos import write
 from policy_stores import policy_settings, write_stores
 from test_frames_store import write_shard
 
-from ocpipe.config.errors import ConfigError
-from ocpipe.config.validate import validate
+from ocpipe.config import validate as C
 from ocpipe.demos.files import DemoError, check_pair, episodes
 from ocpipe.demos.merge import import_official, merge
 from ocpipe.evaluation import closed_loop
@@ -259,15 +258,15 @@ def test_unknown_experiment_key_is_named_with_a_suggestion(default_config):
     cfg = copy.deepcopy(default_config)
     name = next(iter(cfg["experiments"]))
     cfg["experiments"][name] = dict(cfg["experiments"][name] or {}, lrr=0.1)
-    with pytest.raises(ConfigError) as exc:
-        validate(cfg)
+    with pytest.raises(C.ConfigError) as exc:
+        C.validate(cfg)
     msg = str(exc.value)
     assert f"experiments.{name}.lrr: unknown key; did you mean 'lr'?" in msg
     assert "allowed keys:" in msg and "'epochs'" in msg
     cfg = copy.deepcopy(default_config)
     cfg["policy"]["windw"] = 3
-    with pytest.raises(ConfigError, match=r"policy.windw: unknown key; did you mean 'window'\?"):
-        validate(cfg)
+    with pytest.raises(C.ConfigError, match=r"policy.windw: unknown key; did you mean 'window'\?"):
+        C.validate(cfg)
 
 
 # 7. a full disk while a store is written ------------------------------------------------------------------------

@@ -5,7 +5,6 @@ import yaml
 from conftest import REPO
 
 from ocpipe.config import validate as C
-from ocpipe.config.errors import ConfigError
 
 
 def test_default_and_thesis_profiles_validate():
@@ -32,7 +31,7 @@ def test_bad_values_name_the_key_and_what_is_allowed(default_config, path, value
     for key in path[:-1]:
         node = node[key]
     node[path[-1]] = value
-    with pytest.raises(ConfigError) as exc:
+    with pytest.raises(C.ConfigError) as exc:
         C.validate(cfg)
     for word in words:
         assert word in str(exc.value)
@@ -41,14 +40,14 @@ def test_bad_values_name_the_key_and_what_is_allowed(default_config, path, value
 def test_unknown_key_is_rejected(default_config):
     cfg = copy.deepcopy(default_config)
     cfg["demos"]["num_demo"] = 5
-    with pytest.raises(ConfigError, match="num_demo"):
+    with pytest.raises(C.ConfigError, match="num_demo"):
         C.validate(cfg)
 
 
 def test_demo_seeds_may_not_reach_the_held_out_pool(default_config):
     cfg = copy.deepcopy(default_config)
     cfg["demos"]["seed_start"] = 9900  # 100 demos x 2 attempts -> 9900..10099
-    with pytest.raises(ConfigError, match=r"demos.seed_start.*9900..10099.*10000..10999"):
+    with pytest.raises(C.ConfigError, match=r"demos.seed_start.*9900..10099.*10000..10999"):
         C.validate(cfg)
     cfg["demos"]["seed_start"] = 11000  # above the pool is fine
     C.validate(cfg)
@@ -57,12 +56,12 @@ def test_demo_seeds_may_not_reach_the_held_out_pool(default_config):
 def test_import_source_needs_paths(default_config):
     cfg = copy.deepcopy(default_config)
     cfg["demos"]["source"] = "import"
-    with pytest.raises(ConfigError, match="demos.import.PickCube-v1.h5"):
+    with pytest.raises(C.ConfigError, match="demos.import.PickCube-v1.h5"):
         C.validate(cfg)
 
 
 def test_missing_file_is_named(tmp_path):
-    with pytest.raises(ConfigError, match="nope.yaml"):
+    with pytest.raises(C.ConfigError, match="nope.yaml"):
         C.load(tmp_path / "nope.yaml")
 
 
