@@ -269,6 +269,21 @@ def test_unknown_experiment_key_is_named_with_a_suggestion(default_config):
         C.validate(cfg)
 
 
+@pytest.mark.parametrize("override,words", [
+    ({"task": "PushCube-v1"}, "experiments.goal3d.task: 'PushCube-v1' is not one of"),
+    ({"cams": "stereo"}, "experiments.goal3d.cams: 'stereo' is not one of"),
+    ({"encoder": "clip"}, "experiments.goal3d.encoder: 'clip' is not one of"),
+    ({"cameras": [0, 2]}, "experiments.goal3d.cameras: a frames store has two cameras"),
+])
+def test_an_experiment_naming_a_store_no_rule_makes_is_refused(default_config, override, words):
+    """A task, camera set, encoder or camera no rule can build a store for stops at validation, naming the key."""
+    cfg = copy.deepcopy(default_config)
+    cfg["experiments"]["goal3d"] = dict(cfg["experiments"]["goal3d"], **override)
+    with pytest.raises(C.ConfigError) as exc:
+        C.validate(cfg)
+    assert words in str(exc.value)
+
+
 # 7. a full disk while a store is written ------------------------------------------------------------------------
 
 

@@ -306,3 +306,15 @@ def test_an_episode_is_the_same_in_a_fresh_env_and_after_other_episodes(tiny_run
             loop.close()
     assert both.row(1) == alone.row(0)
     assert both_steps.filter(pl.col("seed") == seeds[1]).equals(alone_steps)
+
+
+def test_tiny_run_tables_match_the_committed_ones(tiny_run):
+    """The tiny run's tables, byte for byte, against tests/expected/tiny/ (made by this config before the code was
+    moved into stage packages): a refactor that changes what any stage computes changes a table. When a change is
+    meant to alter results, copy the new tables from the tiny run's results/tables/ over the committed ones."""
+    expected = REPO / "tests" / "expected" / "tiny"
+    names = sorted(p.name for p in expected.glob("*.csv"))
+    assert names == ["table5_1.csv", "table5_2.csv", "table5_6.csv"]
+    for name in names:
+        got = (tiny_run / "results" / "tables" / name).read_text()
+        assert got == (expected / name).read_text(), f"{name} differs from tests/expected/tiny/{name}:\n{got}"
