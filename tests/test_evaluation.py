@@ -5,7 +5,7 @@ import pytest
 from ocpipe.config.errors import ConfigError
 from ocpipe.config.validate import validate
 from ocpipe.evaluation import closed_loop, jobs, taxonomy
-from ocpipe.study import report, tables
+from ocpipe.study import registry, report, tables
 
 RULES = {"idle_variance": 0.001, "near_miss_m": 0.10, "stack_near_m": 0.10, "lift_m": 0.02}
 
@@ -135,7 +135,7 @@ def test_table5_1_from_known_rows():
             episodes(2, [False, False, True], [100, 100, 4], trivial=[False, False, True]),
         ]
     )
-    t = tables.build("table5_1", [tables.Row("2D", {}, {"stability": runs})])
+    t = tables.build(registry.TABLES["table5_1"].columns, [tables.Row("2D", {}, {"stability": runs})])
     row = t.row(0, named=True)
     assert row["SR mean"] == pytest.approx(0.5)  # runs: 0.5, 1.0, 0.0
     assert row["SR std"] == pytest.approx(0.5)  # sample std of (0.5, 1, 0)
@@ -185,6 +185,25 @@ def test_report_writes_tables_from_run_files(tmp_path, default_config):
     assert t["SR mean"].to_list() == [0.5, 1.0]
     assert pl.read_csv(tmp_path / "t.csv")["Method"].to_list() == ["A", "B"]
     assert "| A |" in (tmp_path / "t.md").read_text()
+
+
+def test_a_new_table_is_one_registry_entry(tmp_path, default_config, monkeypatch):
+    runs = tmp_path / "runs"
+    for exp, succ in (("a", [True, False]), ("b", [False, False])):
+        (runs / exp / "stability").mkdir(parents=True)
+        for r in range(2):
+            episodes(r, succ, [50, 80]).write_parquet(runs / exp / "stability" / f"run_{r}.episodes.parquet")
+    monkeypatch.setitem(registry.TABLES, "table_dropout", registry.Table(
+        "Dropout", ("stability",), tables.setting_columns("Dropout", "dropout")))
+    config = {
+        **default_config,
+        "experiments": {"a": {"dropout": 0.0}, "b": {"dropout": 0.3}},
+        "tables": {"table_dropout": {"none": "a", "0.3": "b"}},
+        "evaluation": {**default_config["evaluation"], "stability_runs": 2},
+    }
+    t = report.write_table(config, "table_dropout", tmp_path / "t.csv", tmp_path / "t.md", runs_dir=runs)
+    assert t["Dropout"].to_list() == [0.0, 0.3] and t["SR mean"].to_list() == [0.5, 0.0]
+    assert (tmp_path / "t.md").read_text().startswith("**Dropout**")
 
 
 def test_temporal_ensemble_weights_older_chunks_more_and_votes_the_gripper():

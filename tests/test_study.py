@@ -9,7 +9,7 @@ import torch
 from ocpipe import paths
 from ocpipe.config.validate import deep_merge
 from ocpipe.evaluation import jobs
-from ocpipe.study import report, tables, targets
+from ocpipe.study import registry, report, tables, targets
 
 
 def episodes(run, successes, steps_=None):
@@ -35,10 +35,10 @@ def test_given_weights_put_those_rows_in_the_graph(default_config, tmp_path):
 
 
 def test_every_table_names_only_defined_experiments_and_known_needs(default_config):
-    assert set(default_config["tables"]) == set(targets.TITLES)
-    for table in targets.TITLES:
+    assert set(default_config["tables"]) == set(registry.TABLES)
+    for table in registry.TABLES:
         for exp in targets.rows(default_config, table).values():
-            for need in targets.NEEDS[table]:
+            for need in registry.TABLES[table].needs:
                 assert targets.artefacts(default_config, exp, need)
     with pytest.raises(ValueError, match="unknown table need"):
         targets.artefacts(default_config, "goal2d", "nonsense")
@@ -49,7 +49,7 @@ def test_representation_table_keeps_rows_without_weights_with_their_settings(def
     ok = [r for r in rows if r.status is None]
     ok[0].data = {"stability": pl.concat([episodes(0, [True, False]), episodes(1, [True, True])]),
                   "train_log": pl.DataFrame({"epoch": [1, 2], "seconds": [30.0, 90.0]})}
-    t = tables.build("table5_4", rows)
+    t = tables.build(registry.TABLES["table5_4"].columns, rows)
     by = {r["Method"]: r for r in t.iter_rows(named=True)}
     dense, ssl = by["DINO 14x14 dense"], by["slots_ssl 14 slots (offline)"]
     assert dense["Status"].startswith("needs weights") and dense["SR mean"] is None
@@ -63,7 +63,7 @@ def test_generalization_gap_is_training_seed_sr_minus_held_out_sr():
     row = tables.Row("Concatenation", {"fusion": "concat"},
                      {"stability": pl.concat([episodes(0, [True, False, False, False]), episodes(1, [False] * 4)]),
                       "train_seeds": episodes(0, [True, True, False, False])})
-    r = tables.build("table5_6", [row]).row(0, named=True)
+    r = tables.build(registry.TABLES["table5_6"].columns, [row]).row(0, named=True)
     assert r["Training-seed SR"] == pytest.approx(0.5) and r["Held-out SR"] == pytest.approx(0.125)
     assert r["Gap"] == pytest.approx(0.375)
 

@@ -1,7 +1,7 @@
 # Closed-loop evaluation (docs/study.md, Evaluation protocol): a sweep job per (experiment, checkpoint), the best
 # checkpoint, stability runs (one job each), training-seed runs, failure classification (docs/study.md, Failure
 # taxonomy), and the study's tables and figures (docs/study.md, Tables and figures).
-from ocpipe.study import targets
+from ocpipe.study import registry, targets
 
 
 localrules:
@@ -147,7 +147,7 @@ rule table:
     benchmark:
         "results/benchmarks/tables/{table}.tsv"
     wildcard_constraints:
-        table="|".join(targets.TITLES),
+        table="|".join(registry.TABLES),
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("light")
@@ -162,7 +162,7 @@ rule table:
 rule figure:
     """Figures 5.5 (SR by representation), 5.6 (failures by loss weighting) and 5.7 (StackCube funnel)."""
     input:
-        lambda w: targets.inputs(config, *targets.FIGURES[w.figure]),
+        lambda w: targets.inputs(config, registry.FIGURES[w.figure].table, registry.FIGURES[w.figure].needs),
     output:
         png=report(paths.FIGURE, category="Figures", labels={"figure": "{figure}"}),
     log:
@@ -170,7 +170,7 @@ rule figure:
     benchmark:
         "results/benchmarks/figures/{figure}.tsv"
     wildcard_constraints:
-        figure="|".join(targets.FIGURES),
+        figure="|".join(registry.FIGURES),
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("light")
@@ -184,7 +184,7 @@ rule figure:
 
 rule figures5_1_to_5_3:
     input:
-        targets.inputs(config, "table5_1", targets.SPATIAL_FIGURES_NEEDS),
+        targets.inputs(config, "table5_1", registry.SPATIAL_FIGURES_NEEDS),
     output:
         fig5_1=report(
             paths.FIGURE.format(figure="fig5_1"),

@@ -12,6 +12,7 @@ from ..encoders.registry import tokens_per_camera
 from ..evaluation import taxonomy
 from ..util.atomic import atomic_path
 from . import figures, tables, targets
+from .registry import FIGURES, SPATIAL_FIGURES_NEEDS, TABLES
 
 
 def _read(files) -> pl.DataFrame:
@@ -73,35 +74,28 @@ def table_rows(config: dict, table: str, needs=None, runs_dir="results/runs") ->
         row = tables.Row(label, policy, status=skip.get(label), visual_tokens=tokens)
         if row.status is None:
             row.data = {need: _load(need, targets.artefacts(config, exp, need, runs_dir))
-                        for need in (targets.NEEDS[table] if needs is None else needs)}
+                        for need in (TABLES[table].needs if needs is None else needs)}
         out.append(row)
     return out
 
 
 def write_table(config: dict, table: str, csv_path, md_path, runs_dir="results/runs") -> pl.DataFrame:
-    rows = table_rows(config, table, runs_dir=runs_dir)
-    if targets.NEEDS[table] == ("failures",):
-        always = ("Grasp No Stack",) if table == "table5_11" else ()
-        frame = tables.table5_2({r.label: r.data["failures"] for r in rows if r.status is None}, always)
+    spec, rows = TABLES[table], table_rows(config, table, runs_dir=runs_dir)
+    if spec.columns is None:
+        frame = tables.table5_2({r.label: r.data["failures"] for r in rows if r.status is None}, spec.always_classes)
     else:
-        frame = tables.build(table, rows)
-    return _write(frame, csv_path, md_path, targets.TITLES[table])
+        frame = tables.build(spec.columns, rows)
+    return _write(frame, csv_path, md_path, spec.title)
 
 
 def write_figure(config: dict, figure: str, out_png, runs_dir="results/runs") -> None:
-    table, needs = targets.FIGURES[figure]
-    rows = table_rows(config, table, needs, runs_dir)
-    if figure == "fig5_5":
-        figures.sr_bars(rows, out_png, "Success rate by visual representation (mean ± std over stability runs)")
-    elif figure == "fig5_6":
-        figures.fig5_3({r.label: r.data["failures"] for r in rows if r.status is None}, out_png,
-                       title="Failure distribution by loss weighting")
-    else:
-        figures.funnel({r.label: r.data["failures"] for r in rows if r.status is None}, out_png)
+    spec = FIGURES[figure]
+    rows = table_rows(config, spec.table, spec.needs, runs_dir)
+    spec.draw(rows, out_png)
 
 
 def write_figures5_1_to_5_3(config: dict, fig5_1, fig5_2, fig5_3, runs_dir="results/runs") -> None:
-    rows = [r for r in table_rows(config, "table5_1", targets.SPATIAL_FIGURES_NEEDS, runs_dir) if r.status is None]
+    rows = [r for r in table_rows(config, "table5_1", SPATIAL_FIGURES_NEEDS, runs_dir) if r.status is None]
     figures.fig5_1({r.label: r.data["train_log"] for r in rows}, {r.label: r.data["sweep"] for r in rows}, fig5_1)
     figures.fig5_2({r.label: r.data["stability"] for r in rows}, fig5_2)
     figures.fig5_3({r.label: r.data["failures"] for r in rows}, fig5_3)

@@ -77,40 +77,54 @@ def _minutes_per_epoch(row: Row):
     return None if row.status else float(row.data["train_log"]["seconds"].mean()) / 60.0
 
 
-def _columns(table: str, row: Row) -> dict:
+def stability_columns(row: Row) -> dict:
+    """SR and episode length, mean and std over the stability runs (Tables 5.1, 5.10)."""
+    return _stability(row)
+
+
+def calibration_columns(row: Row) -> dict:
+    return {"Calibration": row.policy["goal_calibration"], "Resolution": row.policy["resolution"], **_stability(row)}
+
+
+def representation_columns(row: Row) -> dict:
     p = row.policy
-    if table == "table5_3":
-        return {"Calibration": p["goal_calibration"], "Resolution": p["resolution"], **_stability(row)}
-    if table == "table5_4":
-        return {"Encoder": p["encoder"], "Visual tokens": row.visual_tokens, "T": p["window"], "H": p["horizon"],
-                "Batch": p["batch_size"], "Minutes/epoch": _minutes_per_epoch(row), **_stability(row)}
-    if table == "table5_5":
-        return {"Head": p["visual_head"], "Parameters": None if row.status else row.data["checkpoints"]["parameters"],
-                **_stability(row)}
-    if table == "table5_6":
-        s = _stability(row)
-        train_sr = None if row.status else success_rate(row.data["train_seeds"])
-        gap = None if train_sr is None or s["SR mean"] is None else train_sr - s["SR mean"]
-        return {"Fusion": p["fusion"], "Training-seed SR": train_sr, "Held-out SR": s["SR mean"],
-                "Held-out SR std": s["SR std"], "Gap": gap}
-    if table == "table5_7":
-        best = {} if row.status else row.data["best"]
-        peak = next((r["mean_return"] for r in best.get("sweep", []) if r["checkpoint"] == best["epoch"]), None)
-        seq = None if row.status else row.data["checkpoints"]["sequence_length"]
-        return {"T": p["window"], "Sequence length": seq, "Minutes/epoch": _minutes_per_epoch(row),
-                "Epochs": p["epochs"], "Best epoch": best.get("epoch"), "Reward at peak": peak, **_stability(row)}
-    if table == "table5_8":
-        return {"Proprio": p["proprio"], **_stability(row)}
-    if table == "table5_9":
-        return {"Loss weighting": p["loss_weighting"], **_stability(row)}
-    return _stability(row)  # 5.1, 5.10
+    return {"Encoder": p["encoder"], "Visual tokens": row.visual_tokens, "T": p["window"], "H": p["horizon"],
+            "Batch": p["batch_size"], "Minutes/epoch": _minutes_per_epoch(row), **_stability(row)}
 
 
-def build(table: str, rows: list[Row]) -> pl.DataFrame:
-    """Tables 5.1 and 5.3-5.10 (5.2 and 5.11, failure distributions, come from table5_2)."""
+def head_columns(row: Row) -> dict:
+    return {"Head": row.policy["visual_head"],
+            "Parameters": None if row.status else row.data["checkpoints"]["parameters"], **_stability(row)}
+
+
+def generalization_columns(row: Row) -> dict:
+    s = _stability(row)
+    train_sr = None if row.status else success_rate(row.data["train_seeds"])
+    gap = None if train_sr is None or s["SR mean"] is None else train_sr - s["SR mean"]
+    return {"Fusion": row.policy["fusion"], "Training-seed SR": train_sr, "Held-out SR": s["SR mean"],
+            "Held-out SR std": s["SR std"], "Gap": gap}
+
+
+def window_columns(row: Row) -> dict:
+    p = row.policy
+    best = {} if row.status else row.data["best"]
+    peak = next((r["mean_return"] for r in best.get("sweep", []) if r["checkpoint"] == best["epoch"]), None)
+    seq = None if row.status else row.data["checkpoints"]["sequence_length"]
+    return {"T": p["window"], "Sequence length": seq, "Minutes/epoch": _minutes_per_epoch(row), "Epochs": p["epochs"],
+            "Best epoch": best.get("epoch"), "Reward at peak": peak, **_stability(row)}
+
+
+def setting_columns(header: str, key: str):
+    """Columns of a table whose rows differ in one policy setting: that setting, then SR and episode length."""
+    return lambda row: {header: row.policy[key], **_stability(row)}
+
+
+def build(columns, rows: list[Row]) -> pl.DataFrame:
+    """A table of stability results: one row per Row, ``columns(row)`` (a registry entry's columns) after its
+    label, then how many episodes and runs it rests on. Failure distributions come from table5_2 instead."""
     out = []
     for row in rows:
-        r = {"Method": row.label, **_columns(table, row)}
+        r = {"Method": row.label, **columns(row)}
         if row.status is None and "stability" in row.data:
             s = stability_summary(row.data["stability"])
             r |= {"Episodes per run": s["episodes_per_run"], "Runs": s["runs"],

@@ -8,44 +8,7 @@ from __future__ import annotations
 
 from .. import paths
 from ..config.experiments import missing_weights, resolve, saved_epochs
-
-TITLES = {
-    "table5_1": "Table 5.1: spatial grounding (held-out SR, mean episode length)",
-    "table5_2": "Table 5.2: failure distribution",
-    "table5_3": "Table 5.3: goal calibration x resolution",
-    "table5_4": "Table 5.4: visual representations",
-    "table5_5": "Table 5.5: single-camera slot heads (base camera, no goal)",
-    "table5_6": "Table 5.6: multi-view fusion, generalization gap (training-seed SR vs held-out SR)",
-    "table5_7": "Table 5.7: temporal window T",
-    "table5_8": "Table 5.8: proprioception and normalization",
-    "table5_9": "Table 5.9: loss weighting by episode progress",
-    "table5_10": "Table 5.10: StackCube, native (base + hand camera, no goal) vs aligned (base + side, 2D goal)",
-    "table5_11": "Table 5.11: StackCube failure distribution",
-}
-
-NEEDS = {
-    "table5_1": ("stability",),
-    "table5_2": ("failures",),
-    "table5_3": ("stability",),
-    "table5_4": ("stability", "train_log"),
-    "table5_5": ("stability", "checkpoints"),
-    "table5_6": ("stability", "train_seeds"),
-    "table5_7": ("stability", "train_log", "best", "checkpoints"),
-    "table5_8": ("stability",),
-    "table5_9": ("stability",),
-    "table5_10": ("stability",),
-    "table5_11": ("failures",),
-}
-
-# figures 5.1-5.3 draw Table 5.1's rows: training curves, sweeps, stability runs, failure classes
-SPATIAL_FIGURES_NEEDS = ("train_log", "sweep", "stability", "failures")
-
-# figure -> (table whose rows it draws, what it reads per row)
-FIGURES = {
-    "fig5_5": ("table5_4", ("stability",)),
-    "fig5_6": ("table5_9", ("failures",)),
-    "fig5_7": ("table5_10", ("failures",)),
-}
+from .registry import TABLES
 
 
 def artefacts(config: dict, exp: str, need: str, runs_dir: str = "results/runs") -> list[str]:
@@ -82,7 +45,7 @@ def unavailable(config: dict, table: str) -> dict[str, str]:
 def inputs(config: dict, table: str, needs: tuple[str, ...] | None = None) -> list[str]:
     """Every file a table (or a figure drawing its rows) reads, for the rows that can run."""
     skip = unavailable(config, table)
-    needs = NEEDS[table] if needs is None else needs
+    needs = TABLES[table].needs if needs is None else needs
     return [f for label, exp in rows(config, table).items() if label not in skip
             for need in needs for f in artefacts(config, exp, need)]
 
