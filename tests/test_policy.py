@@ -8,6 +8,7 @@ from policy_stores import policy_settings, write_stores
 
 from ocpipe.policy import normalization
 from ocpipe.policy.model import PROPRIO_DIMS, SequencePolicy, loss_terms
+from ocpipe.policy.settings import PolicySettings
 from ocpipe.policy.training import learning_rate, load_data, load_policy, train
 from ocpipe.policy.weighting import loss_weights
 from ocpipe.policy.windows import ChunkWindowLoader, Labels, action_frames, progress, window_frames
@@ -127,7 +128,7 @@ def test_a_joints7_tcp_policy_trains_on_the_stores_tcp_and_keeps_its_stats(tmp_p
     train(policy_settings(proprio="joints7_tcp", epochs=1, save_every=1), 0, features, frames, tmp_path / "run",
           progress=False)
     model, stats, policy, _ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0001.pt")
-    assert policy["proprio"] == "joints7_tcp" and stats["proprio_mean"].shape == (10,)
+    assert policy.proprio == "joints7_tcp" and stats["proprio_mean"].shape == (10,)
     assert model.proprio[0].in_features == 10
 
 
@@ -262,7 +263,7 @@ def test_training_writes_checkpoints_and_log_and_a_killed_run_resumes_identicall
     assert pl.read_parquet(tmp_path / "resumed" / "train_log.parquet")["epoch"].to_list() == [1, 2, 3, 4]
 
     model, stats, settings, meta = load_policy(tmp_path / "full" / "checkpoints" / "epoch_0004.pt")
-    assert settings == policy and meta["K"] == 7 and stats["action_std"].shape == (8,)
+    assert settings == PolicySettings.of(policy) and meta["K"] == 7 and stats["action_std"].shape == (8,)
     assert not model.training
 
 
@@ -273,3 +274,15 @@ def test_changed_settings_discard_a_stale_resume_state(tmp_path):
               on_epoch_end=lambda e: (_ for _ in ()).throw(RuntimeError("killed")))
     table = train(policy_settings(epochs=2, save_every=1), 0, features, frames, tmp_path / "run", progress=False)
     assert table["epoch"].to_list() == [1, 2]
+
+
+def test_policy_settings_name_an_unknown_or_missing_key_and_fill_later_levers():
+    base = policy_settings()
+    assert PolicySettings.of(base).as_dict() == {**PolicySettings.of(base).as_dict(), **base}
+    with pytest.raises(ValueError, match="unknown key.*'widht'"):
+        PolicySettings.of({**base, "widht": 3})
+    with pytest.raises(ValueError, match="missing key.*'window'"):
+        PolicySettings.of({k: v for k, v in base.items() if k != "window"})
+    old = {k: v for k, v in base.items() if k not in ("first_frame", "object_readout", "lr_schedule")}
+    s = PolicySettings.of(old)  # a checkpoint written before these keys existed: trained without them
+    assert (s.first_frame, s.object_readout, s.lr_schedule) == (False, False, "constant")

@@ -24,6 +24,7 @@ from ..features.encode import sha256
 from ..features.slot_geometry import full_image_windows, slot_geometry
 from ..frames.store import open_store
 from ..policy import normalization
+from ..policy.settings import PolicySettings
 from ..policy.training import load_policy
 from ..sim import envs, projection
 from ..util.devices import to_device
@@ -43,29 +44,31 @@ def sample_seeds(evaluation: dict, n: int, *stream: int) -> list[int]:
     return sorted(int(s) for s in np.random.default_rng(list(stream)).choice(pool, size=n, replace=False))
 
 
-def check_checkpoint(checkpoint, policy: dict, meta: dict, frames_store, encoder_checkpoint,
+def check_checkpoint(checkpoint, policy: PolicySettings | dict, meta: dict, frames_store, encoder_checkpoint,
                      expected: dict | None = None) -> None:
     """Refuse a policy checkpoint that does not belong with this job's inputs, before a simulator is built:
     ``expected`` (the resolved settings of the experiment being evaluated) names another task, camera set,
     resolution or encoder; the checkpoint was trained on another encoder's features; the frames store (its
     cameras and calibration) is of another task, camera set or resolution; or the encoder weights differ."""
+    policy = PolicySettings.of(policy)
     if expected is not None:
         for key in ("task", "encoder", "cams", "resolution"):
-            if policy.get(key) != expected.get(key):
+            got = getattr(policy, key)
+            if got != expected.get(key):
                 raise ValueError(
-                    f"{checkpoint}: trained for {key} {policy.get(key)!r}, but experiment {expected.get('name')!r} "
+                    f"{checkpoint}: trained for {key} {got!r}, but experiment {expected.get('name')!r} "
                     f"has {key} {expected.get(key)!r}: the checkpoint belongs to another experiment; retrain "
                     f"(delete {Path(checkpoint).parent} and rerun the workflow)")
-    if meta.get("encoder") not in (None, policy["encoder"]):
+    if meta.get("encoder") not in (None, policy.encoder):
         raise ValueError(
-            f"{checkpoint}: its policy names encoder {policy['encoder']!r} but it was trained on {meta['encoder']!r} "
+            f"{checkpoint}: its policy names encoder {policy.encoder!r} but it was trained on {meta['encoder']!r} "
             f"features ({meta.get('features_store')}): delete that features store and the run's checkpoints and "
             "rerun the workflow to rebuild and retrain")
     attrs = open_store(frames_store).attrs.asdict()
     for key, attr in (("task", "task"), ("cams", "camera_set"), ("resolution", "resolution")):
-        if attr in attrs and policy.get(key) != attrs[attr]:
+        if attr in attrs and getattr(policy, key) != attrs[attr]:
             raise ValueError(
-                f"{checkpoint}: trained for {key} {policy.get(key)!r}, but {frames_store} is a frames store of "
+                f"{checkpoint}: trained for {key} {getattr(policy, key)!r}, but {frames_store} is a frames store of "
                 f"{attr} {attrs[attr]!r}: give the frames store it was trained on ({meta.get('frames_store')})")
     if encoder_checkpoint and meta.get("encoder_checkpoint_sha256") not in (None, sha256(encoder_checkpoint)):
         raise ValueError(f"{encoder_checkpoint} is not the encoder checkpoint that {checkpoint} was trained on "
@@ -83,21 +86,21 @@ class ClosedLoop:
         self.model, self.stats, self.policy, self.meta = load_policy(checkpoint, self.device)
         p = self.policy
         check_checkpoint(checkpoint, p, self.meta, frames_store, encoder_checkpoint, expected)
-        self.encoder = to_device(registry.build(p["encoder"], config["encoders"], frames_store, encoder_checkpoint),
+        self.encoder = to_device(registry.build(p.encoder, config["encoders"], frames_store, encoder_checkpoint),
                                  self.device)
         self.reads_labels = getattr(self.encoder, "reads_labels", False)
-        self.task = p["task"]
-        self.camera_names = list(envs.CAMERA_SETS[p["cams"]])
+        self.task = p.task
+        self.camera_names = list(envs.CAMERA_SETS[p.cams])
         self.uids = [envs.SIM_CAMERA_UID[c] for c in self.camera_names]
         # an encoder that reads the simulator's state needs no image: render nothing
-        self.env = envs.make_env(self.task, config, None if self.reads_labels else p["cams"], p["resolution"],
+        self.env = envs.make_env(self.task, config, None if self.reads_labels else p.cams, p.resolution,
                                 obs_mode="rgb")
-        self.windows = getattr(self.encoder, "windows", full_image_windows(len(self.uids), p["resolution"]))
-        self.residual = p.get("joint_targets", "absolute") == "residual"
-        self.approx_K, self.approx_E = envs.approx_camera_matrices(config, self.camera_names, p["resolution"])
+        self.windows = getattr(self.encoder, "windows", full_image_windows(len(self.uids), p.resolution))
+        self.residual = p.joint_targets == "residual"
+        self.approx_K, self.approx_E = envs.approx_camera_matrices(config, self.camera_names, p.resolution)
         ev = config["evaluation"]
         self.cap = ev["episode_cap"][self.task]
-        self.execute = min(ev["execute_actions"], p["horizon"])
+        self.execute = min(ev["execute_actions"], p.horizon)
         self.ensemble = ev.get("temporal_ensemble", 0.0)
         self.trivial_steps = ev["trivial_steps"]
 
@@ -105,13 +108,13 @@ class ClosedLoop:
         self.env.close()
 
     def _goal(self, obs, goal_pos: np.ndarray) -> np.ndarray:
-        kind = self.policy["goal"]
+        kind = self.policy.goal
         if kind == "none":
             return np.zeros(0, np.float32)
         if kind == "3d":
             return goal_pos.astype(np.float32)
-        res = self.policy["resolution"]
-        if self.policy["goal_calibration"] == "approx":
+        res = self.policy.resolution
+        if self.policy.goal_calibration == "approx":
             K, E = self.approx_K, self.approx_E
         else:
             params = obs["sensor_param"]
@@ -122,31 +125,31 @@ class ClosedLoop:
     def _tokens(self, obs, labels: dict) -> torch.Tensor:
         """This step's visual tokens (C, K, D), exactly as the policy saw them in training."""
         if self.reads_labels:
-            return torch.from_numpy(state_tokens(labels["obj_pos"], labels["obj_quat"]))[self.policy["cameras"]]
+            return torch.from_numpy(state_tokens(labels["obj_pos"], labels["obj_quat"]))[self.policy.cameras]
         rgb = torch.stack([obs["sensor_data"][u]["rgb"][0] for u in self.uids])[None].cpu()
         tokens, masks = self.encoder.encode(rgb.to(self.device))
         # the policy was trained on tokens as stored (float16 by default): round the same way
         tokens = tokens.cpu().to(getattr(torch, self.meta.get("tokens_dtype", "float32"))).float()
-        if self.policy.get("slot_geometry", False):
-            tokens = torch.cat([tokens, slot_geometry(masks, self.windows, self.policy["resolution"]).cpu()], -1)
-        return tokens[0][self.policy["cameras"]]
+        if self.policy.slot_geometry:
+            tokens = torch.cat([tokens, slot_geometry(masks, self.windows, self.policy.resolution).cpu()], -1)
+        return tokens[0][self.policy.cameras]
 
     @torch.inference_mode()
     def _observe(self, obs) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:
         labels = envs.task_readouts(self.env)
         tokens = self._tokens(obs, labels)
-        x = normalization.proprio_input(labels["qpos"], labels["tcp_pos"], self.policy["proprio"])
+        x = normalization.proprio_input(labels["qpos"], labels["tcp_pos"], self.policy.proprio)
         proprio = normalization.proprio(x[None], self.stats)[0]
         return tokens, proprio, self._goal(obs, labels["goal_pos"]), labels
 
     @torch.inference_mode()
     def episode(self, seed: int) -> tuple[dict, dict[str, list]]:
         obs, _ = self.env.reset(seed=seed)
-        T = self.policy["window"]
+        T = self.policy.window
         window: deque = deque(maxlen=T)
         steps: dict[str, list] = {k: [] for k in ("step", "action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos",
                                                    "reward")}
-        chunks: deque = deque(maxlen=-(-self.policy["horizon"] // self.execute))  # (query step, (H, 8) actions)
+        chunks: deque = deque(maxlen=-(-self.policy.horizon // self.execute))  # (query step, (H, 8) actions)
         success, total = False, 0.0
         for t in range(self.cap):
             tokens, proprio, goal, labels = self._observe(obs)

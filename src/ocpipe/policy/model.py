@@ -24,41 +24,43 @@ from torch import nn
 
 from ..encoders.state import STATE_DIMS
 from .heads import HEADS, CrossCameraFusion, mlp
+from .settings import PolicySettings
 
 GOAL_DIMS = {"none": 0, "2d": 4, "3d": 3}
 PROPRIO_DIMS = {"joints7": 7, "qpos9_global": 9, "qpos9_grouped": 9, "joints7_tcp": 10}
 
 
 class SequencePolicy(nn.Module):
-    def __init__(self, policy: dict, K: int, D: int, token_stats: tuple | None = None):
+    def __init__(self, policy: PolicySettings | dict, K: int, D: int, token_stats: tuple | None = None):
         super().__init__()
-        W, heads = policy["width"], policy["heads"]
-        self.T, self.H = policy["window"], policy["horizon"]
-        self.cams = len(policy["cameras"])
-        self.goal_kind = policy["goal"]
-        self.tanh = policy["action_head"] == "tanh"
-        self.bce = policy["gripper"] == "bce"
-        self.visual = HEADS[policy["visual_head"]](K, D, W, heads)
-        self.fusion = CrossCameraFusion(W, heads) if policy["fusion"] == "cross_attention" else None
-        self.proprio = mlp([PROPRIO_DIMS[policy["proprio"]], W, W, W])
+        policy = PolicySettings.of(policy)
+        W, heads = policy.width, policy.heads
+        self.T, self.H = policy.window, policy.horizon
+        self.cams = len(policy.cameras)
+        self.goal_kind = policy.goal
+        self.tanh = policy.action_head == "tanh"
+        self.bce = policy.gripper == "bce"
+        self.visual = HEADS[policy.visual_head](K, D, W, heads)
+        self.fusion = CrossCameraFusion(W, heads) if policy.fusion == "cross_attention" else None
+        self.proprio = mlp([PROPRIO_DIMS[policy.proprio], W, W, W])
         self.goal = {"none": None, "2d": mlp([4, W, W, W]), "3d": nn.Linear(3, W)}[self.goal_kind]
         self.action_token = nn.Parameter(torch.zeros(W))
-        readout = policy.get("object_readout", False)
+        readout = policy.object_readout
         self.object_readout = mlp([self.cams * K * D, 4 * W, 4 * W, STATE_DIMS]) if readout else None
         self.object_token = nn.Linear(STATE_DIMS, W) if readout else None
         self.per_step = self.cams * self.visual.tokens_out + 1 + (self.goal is not None) + readout + 1
         self.pos = nn.Parameter(torch.zeros(self.T * self.per_step, W))
-        layer = nn.TransformerEncoderLayer(W, heads, 4 * W, dropout=policy["dropout"], activation="gelu",
+        layer = nn.TransformerEncoderLayer(W, heads, 4 * W, dropout=policy.dropout, activation="gelu",
                                            batch_first=True, norm_first=True)
-        self.decoder = nn.TransformerEncoder(layer, policy["layers"], enable_nested_tensor=False)
+        self.decoder = nn.TransformerEncoder(layer, policy.layers, enable_nested_tensor=False)
         self.norm = nn.LayerNorm(W)
         self.readout = mlp([W, W, W, self.H * (7 if self.bce else 8)])
         self.gripper_head = mlp([W, W, W, self.H]) if self.bce else None
         mean, std = token_stats if token_stats is not None else (torch.zeros(D), torch.ones(D))
         self.register_buffer("token_mean", torch.as_tensor(mean, dtype=torch.float32).reshape(D))
         self.register_buffer("token_std", torch.as_tensor(std, dtype=torch.float32).reshape(D))
-        self.aux_head = mlp([W, W, 3]) if policy.get("aux_object_weight", 0) > 0 else None
-        self.first_frame = bool(policy.get("first_frame", False))
+        self.aux_head = mlp([W, W, 3]) if policy.aux_object_weight > 0 else None
+        self.first_frame = bool(policy.first_frame)
         self.prefix = self.cams * self.visual.tokens_out if self.first_frame else 0
         self.first_pos = nn.Parameter(torch.zeros(self.prefix, W)) if self.first_frame else None
         if self.first_pos is not None:

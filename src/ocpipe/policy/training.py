@@ -33,25 +33,28 @@ from ..util.atomic import atomic_path
 from ..util.devices import pick_device
 from . import normalization
 from .model import SequencePolicy, loss_terms
+from .settings import PolicySettings
 from .weighting import loss_weights
 from .windows import ChunkWindowLoader, Labels, action_frames
 
 log = logging.getLogger(__name__)
 
 
-def goal_source(policy: dict) -> str | None:
+def goal_source(policy: PolicySettings | dict) -> str | None:
     """The frames-store array a policy's goal input comes from (None: no goal input)."""
-    return {"none": None, "3d": "goal_pos"}.get(policy["goal"], f"goal2d_{policy.get('goal_calibration')}")
+    policy = PolicySettings.of(policy)
+    return {"none": None, "3d": "goal_pos"}.get(policy.goal, f"goal2d_{policy.goal_calibration}")
 
 
-def goal_array(frames, policy: dict) -> np.ndarray:
+def goal_array(frames, policy: PolicySettings | dict) -> np.ndarray:
+    policy = PolicySettings.of(policy)
     source = goal_source(policy)
     if source is None:
         return np.zeros((frames["qpos"].shape[0], 0), dtype=np.float32)
     goal = frames[source][:].astype(np.float32)
-    if policy["goal"] == "2d" and not np.isfinite(goal).all():
+    if policy.goal == "2d" and not np.isfinite(goal).all():
         raise ValueError(f"{source} has NaN in {frames.store}: the camera set "
-                         f"{policy['cams']!r} has no {policy['goal_calibration']} 2d goal (policy.goal_calibration)")
+                         f"{policy.cams!r} has no {policy.goal_calibration} 2d goal (policy.goal_calibration)")
     return goal
 
 
@@ -75,52 +78,53 @@ def token_stats(tokens, frames: np.ndarray, max_frames: int = 20000) -> tuple[np
     return x.mean(0).astype(np.float32), np.maximum(x.std(0), normalization.EPS).astype(np.float32)
 
 
-def load_data(policy: dict, features_path, frames_path):
+def load_data(policy: PolicySettings | dict, features_path, frames_path):
     """-> (tokens array, Labels, normalization stats computed from the training frames, meta, (train, val) frames)."""
-    goal = (goal_source(policy),) if policy["goal"] != "none" else ()
-    aux = ("obj_pos",) if policy.get("aux_object_weight", 0) > 0 else ()
-    aux += ("obj_pos", "obj_quat") if policy.get("object_readout", False) else ()
-    tcp = ("tcp_pos",) if policy["proprio"] == "joints7_tcp" else ()
+    policy = PolicySettings.of(policy)
+    goal = (goal_source(policy),) if policy.goal != "none" else ()
+    aux = ("obj_pos",) if policy.aux_object_weight > 0 else ()
+    aux += ("obj_pos", "obj_quat") if policy.object_readout else ()
+    tcp = ("tcp_pos",) if policy.proprio == "joints7_tcp" else ()
     feats, frames = open_features(features_path), open_store(frames_path, need=("qpos", "action", *goal, *aux, *tcp))
     check_provenance(feats, features_path, frames, frames_path)
-    tokens = PolicyTokens(feats, policy.get("slot_geometry", False), str(features_path))
+    tokens = PolicyTokens(feats, policy.slot_geometry, str(features_path))
     if tokens.shape[0] != frames["qpos"].shape[0]:
         raise ValueError(
             f"{features_path} has {tokens.shape[0]} frames but {frames_path} has {frames['qpos'].shape[0]}"
         )
-    if max(policy["cameras"]) >= tokens.shape[1]:
-        raise ValueError(f"policy.cameras {policy['cameras']}: {features_path} has {tokens.shape[1]} cameras")
+    if max(policy.cameras) >= tokens.shape[1]:
+        raise ValueError(f"policy.cameras {policy.cameras}: {features_path} has {tokens.shape[1]} cameras")
     offsets = frames.attrs["episode_offsets"]
-    train_frames, val_frames = split_episodes(offsets, policy.get("val_episodes", 0), str(frames_path))
+    train_frames, val_frames = split_episodes(offsets, policy.val_episodes, str(frames_path))
     qpos, action = frames["qpos"][:].astype(np.float32), frames["action"][:].astype(np.float32)
     proprio_x = normalization.proprio_input(qpos, frames["tcp_pos"][:].astype(np.float32) if tcp else None,
-                                            policy["proprio"])
-    stats = normalization.compute(proprio_x[train_frames], action[train_frames], policy["proprio"])
+                                            policy.proprio)
+    stats = normalization.compute(proprio_x[train_frames], action[train_frames], policy.proprio)
     extra = {}
-    if policy.get("joint_targets", "absolute") == "residual":
+    if policy.joint_targets == "residual":
         bounds = Labels.from_offsets(offsets, qpos, qpos, action)
         stats.update(
             normalization.residual_stats(
-                action, qpos, train_frames, action_frames(train_frames, bounds, policy["horizon"])
+                action, qpos, train_frames, action_frames(train_frames, bounds, policy.horizon)
             )
         )
         extra["residual"] = (normalization.residual_base(qpos), stats["action_mean"], stats["action_std"])
         model_action = action
     else:
         model_action = normalization.action_to_model(action, stats)
-    if policy.get("aux_object_weight", 0) > 0:
+    if policy.aux_object_weight > 0:
         obj = frames["obj_pos"][:].astype(np.float32)
         stats["aux_mean"], stats["aux_std"] = obj[train_frames].mean(0), np.maximum(obj[train_frames].std(0), 1e-6)
         extra["aux"] = ((obj - stats["aux_mean"]) / stats["aux_std"]).astype(np.float32)
-    if policy.get("object_readout", False):
+    if policy.object_readout:
         pose = state_tokens(frames["obj_pos"][:], frames["obj_quat"][:])[:, 0, 0]
         stats["readout_mean"] = pose[train_frames].mean(0)
         stats["readout_std"] = np.maximum(pose[train_frames].std(0), 1e-6)
         extra["readout"] = ((pose - stats["readout_mean"]) / stats["readout_std"]).astype(np.float32)
-    if policy.get("first_frame", False):
+    if policy.first_frame:
         starts = np.asarray(offsets[:-1], dtype=np.int64)
         extra["first"] = (starts, np.stack([np.asarray(tokens[s : s + 1], dtype=np.float32)[0] for s in starts]))
-    if policy.get("token_norm", "none") == "zscore":
+    if policy.token_norm == "zscore":
         stats["token_mean"], stats["token_std"] = token_stats(tokens, train_frames)
     labels = Labels.from_offsets(
         offsets, normalization.proprio(proprio_x, stats), goal_array(frames, policy), model_action, **extra
@@ -132,19 +136,19 @@ def load_data(policy: dict, features_path, frames_path):
         "frames_store": str(frames_path),
         "encoder": feats.attrs.get("encoder"),
         "encoder_checkpoint_sha256": feats.attrs.get("checkpoint_sha256"),
-        "cameras": [frames.attrs["cameras"][c] for c in policy["cameras"]],
+        "cameras": [frames.attrs["cameras"][c] for c in policy.cameras],
         "tokens_dtype": str(tokens.dtype),
     }
     return tokens, labels, stats, meta, (train_frames, val_frames)
 
 
-def build_model(policy: dict, meta: dict, stats: dict) -> SequencePolicy:
+def build_model(policy: PolicySettings | dict, meta: dict, stats: dict) -> SequencePolicy:
     token = (stats["token_mean"], stats["token_std"]) if "token_mean" in stats else None
     return SequencePolicy(policy, meta["K"], meta["D"], token)
 
 
-def _fingerprint(policy: dict, seed: int, meta: dict) -> str:
-    blob = json.dumps({"policy": policy, "seed": seed, "meta": meta}, sort_keys=True, default=str)
+def _fingerprint(policy: PolicySettings, seed: int, meta: dict) -> str:
+    blob = json.dumps({"policy": policy.as_dict(), "seed": seed, "meta": meta}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
@@ -152,12 +156,13 @@ def _epoch_seed(seed: int, epoch: int) -> int:
     return int(np.random.SeedSequence([seed, epoch]).generate_state(1)[0])
 
 
-def learning_rate(policy: dict, step: int, total_steps: int) -> float:
+def learning_rate(policy: PolicySettings | dict, step: int, total_steps: int) -> float:
     """The learning rate of training batch ``step`` of ``total_steps``: a function of the step alone, so a resumed
     run follows the same schedule without any scheduler state."""
-    if policy.get("lr_schedule", "constant") == "cosine":
-        return policy["lr"] * 0.5 * (1.0 + math.cos(math.pi * step / max(total_steps, 1)))
-    return policy["lr"]
+    policy = PolicySettings.of(policy)
+    if policy.lr_schedule == "cosine":
+        return policy.lr * 0.5 * (1.0 + math.cos(math.pi * step / max(total_steps, 1)))
+    return policy.lr
 
 
 def _save(obj: dict, path: Path) -> None:
@@ -167,7 +172,7 @@ def _save(obj: dict, path: Path) -> None:
 
 
 def train(
-    policy: dict,
+    policy: PolicySettings | dict,
     seed: int,
     features_path,
     frames_path,
@@ -178,16 +183,17 @@ def train(
 ) -> pl.DataFrame:
     from ..config.experiments import saved_epochs
 
+    policy = PolicySettings.of(policy)
     torch.set_num_threads(threads)
     out_dir = Path(out_dir)
     work = out_dir / ".train"
-    device = pick_device(policy["device"])
+    device = pick_device(policy.device)
     tokens, labels, stats, meta, (train_frames, val_frames) = load_data(policy, features_path, frames_path)
     fingerprint = _fingerprint(policy, seed, meta)
 
     torch.manual_seed(seed)
     model = build_model(policy, meta, stats).to(device)
-    opt = torch.optim.AdamW(model.parameters(), lr=policy["lr"], weight_decay=policy["weight_decay"])
+    opt = torch.optim.AdamW(model.parameters(), lr=policy.lr, weight_decay=policy.weight_decay)
     history: list[dict] = []
     start = 0
     state_path = work / "state.pt"
@@ -197,7 +203,7 @@ def train(
             model.load_state_dict(state["model"])
             opt.load_state_dict(state["optimizer"])
             history, start = state["history"], state["epoch"]
-            log.info("resuming %s after epoch %d", policy.get("name"), start)
+            log.info("resuming %s after epoch %d", policy.name, start)
         else:
             log.info("discarding resume state of different settings in %s", work)
             shutil.rmtree(work)
@@ -206,24 +212,24 @@ def train(
     loader = ChunkWindowLoader(
         tokens,
         labels,
-        policy["window"],
-        policy["horizon"],
-        policy["batch_size"],
-        policy["cameras"],
+        policy.window,
+        policy.horizon,
+        policy.batch_size,
+        policy.cameras,
         seed,
         frames=train_frames,
     )
     val_loader = (
         ChunkWindowLoader(
-            tokens, labels, policy["window"], policy["horizon"], 256, policy["cameras"], seed, frames=val_frames
+            tokens, labels, policy.window, policy.horizon, 256, policy.cameras, seed, frames=val_frames
         )
         if len(val_frames)
         else None
     )
-    aux_weight = policy.get("aux_object_weight", 0.0)
-    proprio_noise = policy.get("proprio_noise", 0.0)
-    keep = set(saved_epochs(policy))
-    for epoch in range(start, policy["epochs"]):
+    aux_weight = policy.aux_object_weight
+    proprio_noise = policy.proprio_noise
+    keep = set(saved_epochs(policy.as_dict()))
+    for epoch in range(start, policy.epochs):
         torch.manual_seed(_epoch_seed(seed, epoch))
         model.train()
         t0 = time.perf_counter()
@@ -234,18 +240,18 @@ def train(
             total=len(loader),
             disable=not progress,
             unit="batch",
-            desc=f"{policy.get('name', 'policy')} epoch {epoch + 1}/{policy['epochs']}",
+            desc=f"{policy.name or 'policy'} epoch {epoch + 1}/{policy.epochs}",
         )
         for i, batch in enumerate(bar):
-            lr = learning_rate(policy, epoch * len(loader) + i, policy["epochs"] * len(loader))
+            lr = learning_rate(policy, epoch * len(loader) + i, policy.epochs * len(loader))
             for group in opt.param_groups:
                 group["lr"] = lr
             batch = {k: v.to(device) for k, v in batch.items()}
             if proprio_noise > 0:  # blur the joint history so the policy cannot act on it alone (copycat)
                 batch["proprio"] = batch["proprio"] + proprio_noise * torch.randn_like(batch["proprio"])
             pred, aux = model(batch["tokens"], batch["proprio"], batch["goal"], batch.get("first"), aux=True)
-            w = loss_weights(policy["loss_weighting"], batch["progress"], epoch, policy["time_weight_warmup_epochs"])
-            terms = loss_terms(pred, batch["action"], w, policy["gripper"] == "bce")
+            w = loss_weights(policy.loss_weighting, batch["progress"], epoch, policy.time_weight_warmup_epochs)
+            terms = loss_terms(pred, batch["action"], w, policy.gripper == "bce")
             terms["loss_aux"] = torch.zeros(())
             if aux["object_pos"] is not None:
                 terms["loss_aux"] = ((aux["object_pos"] - batch["aux"]) ** 2).mean()
@@ -256,7 +262,7 @@ def train(
                 terms["loss"] = terms["loss"] + terms["loss_readout"]
             opt.zero_grad(set_to_none=True)
             terms["loss"].backward()
-            torch.nn.utils.clip_grad_norm_(model.parameters(), policy["grad_clip"])
+            torch.nn.utils.clip_grad_norm_(model.parameters(), policy.grad_clip)
             opt.step()
             b = len(batch["action"])
             for k in sums:
@@ -275,7 +281,7 @@ def train(
         state = {
             "model": model.state_dict(),
             "optimizer": opt.state_dict(),
-            "policy": policy,
+            "policy": policy.as_dict(),
             "seed": seed,
             "norm": stats,
             "meta": meta,
@@ -301,10 +307,12 @@ def train(
 
 
 @torch.inference_mode()
-def openloop_error(model, loader: ChunkWindowLoader, labels: Labels, stats: dict, policy: dict, device) -> dict:
+def openloop_error(model, loader: ChunkWindowLoader, labels: Labels, stats: dict,
+                   policy: PolicySettings | dict, device) -> dict:
     """Action error on held-out demo frames, without a simulator: the predicted H-step chunk against the expert's
     (joint error in radians, mean over joints and steps, and for the first step alone; share of gripper commands
     that agree). Cheap, and it separates 'did not learn the demos' from 'fails in closed loop'."""
+    policy = PolicySettings.of(policy)
     model.eval()
     joint_err, first_err, grip_ok, n = 0.0, 0.0, 0.0, 0
     for batch in loader.epoch(0):
@@ -313,7 +321,7 @@ def openloop_error(model, loader: ChunkWindowLoader, labels: Labels, stats: dict
         pred = model(*inputs).cpu().numpy()
         qpos = labels.residual[0][frames][:, :7] if labels.residual is not None else None
         got = normalization.action_from_model(pred, stats, qpos=qpos)
-        want = labels.action[action_frames(frames, labels, policy["horizon"])]
+        want = labels.action[action_frames(frames, labels, policy.horizon)]
         if labels.residual is None:
             want = normalization.action_from_model(want, stats)
         err = np.abs(got[..., :7] - want[..., :7])
@@ -332,8 +340,9 @@ def openloop_error(model, loader: ChunkWindowLoader, labels: Labels, stats: dict
 def load_policy(path, device: str | torch.device = "cpu"):
     """A saved checkpoint -> (model in eval mode, normalization stats, policy settings, meta)."""
     ckpt = torch.load(path, map_location=device, weights_only=False)
-    model = build_model(ckpt["policy"], ckpt["meta"], ckpt["norm"]).to(device)
+    policy = PolicySettings.of(ckpt["policy"])
+    model = build_model(policy, ckpt["meta"], ckpt["norm"]).to(device)
     model.load_state_dict(ckpt["model"])
     model.eval()
     stats = {k: np.asarray(v) for k, v in ckpt["norm"].items()}
-    return model, stats, ckpt["policy"], ckpt["meta"]
+    return model, stats, policy, ckpt["meta"]

@@ -1,0 +1,75 @@
+"""One experiment's policy settings, typed: config `policy` with the experiment's overrides (config/README.md lists
+each key with its allowed values; the schema validates them before anything runs).
+
+Checkpoints store the settings as a plain dict (readable without this module); ``PolicySettings.of`` turns a dict
+back into settings, filling the keys added after a checkpoint was written with the values that reproduce how it
+was trained (the study's recipe)."""
+
+from __future__ import annotations
+
+from dataclasses import MISSING, asdict, dataclass, fields
+
+
+@dataclass(frozen=True)
+class PolicySettings:
+    # what the policy sees
+    task: str  # ManiSkill task: PickCube-v1 | StackCube-v1
+    cams: str  # camera set of its frames store: dual (base + side) | native (base + hand)
+    resolution: int  # square image size of the frames store, pixels
+    encoder: str  # frozen encoder whose tokens it reads: slots_ssl | spot | dino_cls | dino_grid4 | dino_dense | state
+    cameras: list[int]  # which cameras of the store (0: base, 1: side or hand)
+    goal: str  # none (pure visual) | 2d (the goal projected into each camera) | 3d (the goal's xyz)
+    goal_calibration: str  # the 2d goal from the simulator's cameras (exact) or a hand-measured model (approx)
+    proprio: str  # joints7 | qpos9_global | qpos9_grouped | joints7_tcp
+    window: int  # T: past timesteps in each query
+    horizon: int  # H: future actions predicted per query
+    # the network
+    width: int  # token width
+    layers: int  # transformer decoder layers
+    heads: int  # attention heads
+    dropout: float
+    fusion: str  # concat | cross_attention (between the two cameras' tokens)
+    visual_head: str  # tokens | flatten | deepsets | weighted_pool | slot_transformer
+    action_head: str  # linear | tanh
+    gripper: str  # regression | bce
+    # training
+    loss_weighting: str  # uniform | time | u_shaped | dim_decoupled (by episode progress)
+    time_weight_warmup_epochs: int  # 'time' weighting is uniform for these first epochs
+    epochs: int
+    save_every: int  # a checkpoint every this many epochs, and at the last
+    batch_size: int
+    lr: float  # AdamW learning rate
+    weight_decay: float
+    grad_clip: float  # gradient-norm clipping threshold
+    device: str  # auto | cpu | cuda
+    # departures from the study's recipe (config/thesis.yaml switches each off)
+    token_norm: str = "none"  # none | zscore: standardize the visual token dimensions
+    slot_geometry: bool = False  # append each slot mask's centroid, area and spread to its token
+    aux_object_weight: float = 0.0  # weight of the auxiliary loss predicting the object's position
+    proprio_noise: float = 0.0  # std of the noise on the z-scored joint inputs in training
+    joint_targets: str = "absolute"  # absolute | residual (targets minus the current joints)
+    lr_schedule: str = "constant"  # constant | cosine
+    first_frame: bool = False  # the episode's first-frame tokens before the T steps
+    object_readout: bool = False  # a token per step: the object's pose read off the frozen tokens
+    val_episodes: int = 0  # last demos held out of training for the open-loop error
+    name: str | None = None  # the experiment's name (config `experiments`)
+
+    @classmethod
+    def of(cls, settings: PolicySettings | dict) -> PolicySettings:
+        """Settings from a resolved config dict or a checkpoint's dict (or settings, unchanged)."""
+        if isinstance(settings, cls):
+            return settings
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(settings) - known)
+        if unknown:
+            raise ValueError(f"policy settings: unknown key(s) {unknown} (known: {sorted(known)})")
+        missing = sorted(f.name for f in fields(cls) if f.default is MISSING and f.name not in settings)
+        if missing:
+            raise ValueError(f"policy settings: missing key(s) {missing}")
+        values = dict(settings)
+        values["cameras"] = list(values["cameras"])
+        return cls(**values)
+
+    def as_dict(self) -> dict:
+        """A plain dict, as checkpoints store it and the workflow's config sections hold it."""
+        return asdict(self)
