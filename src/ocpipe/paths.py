@@ -13,7 +13,7 @@ RESULTS = "results"
 DEMO_SHARD = RESULTS + "/demos/shards/{task}/shard{shard}"
 DEMOS = RESULTS + "/demos/{task}"
 
-# frames: replayed, rendered episodes (the contract in README "Frames store contract")
+# frames: replayed, rendered episodes (the contract: docs/pipeline.md, "Frames store contract")
 FRAMES_SHARD = RESULTS + "/frames/shards/{task}_{cams}_{res}/shard{shard}"
 FRAMES_STORE = RESULTS + "/frames/{task}_{cams}_{res}.zarr"
 FRAMES_REPORT = RESULTS + "/frames/{task}_{cams}_{res}.report.json"

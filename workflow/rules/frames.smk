@@ -1,5 +1,5 @@
 # Frames: env-state-aligned replay of every demo, rendered natively with the study's cameras, in shards that
-# run as separate jobs, merged into results/frames/{task}_{cams}_{res}.zarr (contract: README.md).
+# run as separate jobs, merged into results/frames/{task}_{cams}_{res}.zarr (contract: docs/pipeline.md).
 
 
 rule frames_shard:

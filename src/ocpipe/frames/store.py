@@ -1,4 +1,4 @@
-"""The frames store: one Zarr v3 group per (task, camera set, resolution). Its contract is in README.md."""
+"""The frames store: one Zarr v3 group per (task, camera set, resolution). Its contract: docs/pipeline.md."""
 
 from __future__ import annotations
 
@@ -186,7 +186,7 @@ def merge(shard_paths: list[str | Path], out_path: str | Path, chunk_frames: int
 
 
 def check_contract(path: str | Path) -> list[str]:
-    """Every way the store at ``path`` breaks the contract in README.md (empty list: it meets it)."""
+    """Every way the store at ``path`` breaks the contract in docs/pipeline.md (empty list: it meets it)."""
     root = open_store(path)
     problems = []
     attrs = root.attrs.asdict()
