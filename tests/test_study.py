@@ -134,3 +134,13 @@ def test_run_files_come_from_the_path_patterns_under_any_runs_folder(default_con
         "/x/runs/goal2d/stability/run_0.episodes.parquet")
     assert targets.artefacts(default_config, "goal2d", "sweep")[-1] == (
         paths.SWEEP.format(exp="goal2d", epoch=f"{default_config['policy']['epochs']:04d}") + ".episodes.parquet")
+
+
+def test_store_names_fill_the_path_patterns():
+    assert paths.frames_store("PickCube-v1_dual_128") == "results/frames/PickCube-v1_dual_128.zarr"
+    assert paths.named(paths.ATTENTION_FIGURE, "PickCube-v1_dual_128_spot") == (
+        "results/figures/attention_PickCube-v1_dual_128_spot.png")
+    assert paths.features_diagnostics("StackCube-v1_native_64_slots_ssl") == paths.FEATURES_DIAGNOSTICS.format(
+        task="StackCube-v1", cams="native", res=64, encoder="slots_ssl")
+    with pytest.raises(ValueError, match="no store name fields"):
+        paths.named(paths.BEST, "PickCube-v1_dual_128")

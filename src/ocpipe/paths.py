@@ -43,24 +43,32 @@ TABLE = RESULTS + "/tables/{table}"  # .csv and .md
 FIGURE = RESULTS + "/figures/{figure}.png"
 
 
-def store_name(task: str, cams: str, res: int) -> str:
-    """A frames store's name, as config and features store names use it."""
-    return f"{task}_{cams}_{res}"
+FRAMES_NAME = "{task}_{cams}_{res}"  # a frames store's name, as config `encoders.slots_ssl.train_stores` lists it
+FEATURES_NAME = FRAMES_NAME + "_{encoder}"  # a features store's name
+
+
+def named(pattern: str, name: str) -> str:
+    """A pattern with a store's name in place of its fields: a features store name ``{task}_{cams}_{res}_{encoder}``
+    where the pattern has those four, a frames store name ``{task}_{cams}_{res}`` where it has three."""
+    fields = FEATURES_NAME if FEATURES_NAME in pattern else FRAMES_NAME
+    if fields not in pattern:
+        raise ValueError(f"{pattern!r} has no store name fields")
+    return pattern.replace(fields, name)
 
 
 def frames_store(name: str) -> str:
     """The frames store path of a store name ``{task}_{cams}_{res}``."""
-    return f"{RESULTS}/frames/{name}.zarr"
+    return named(FRAMES_STORE, name)
 
 
 def features_store(name: str) -> str:
     """The features store path of a name ``{task}_{cams}_{res}_{encoder}``."""
-    return f"{RESULTS}/features/{name}.zarr"
+    return named(FEATURES_STORE, name)
 
 
 def features_diagnostics(name: str) -> str:
     """The diagnostics report of a features store name ``{task}_{cams}_{res}_{encoder}``."""
-    return f"{RESULTS}/features/{name}.diagnostics.json"
+    return named(FEATURES_DIAGNOSTICS, name)
 
 
 def in_runs(pattern: str, runs_dir, **fields) -> str:

@@ -51,16 +51,9 @@ def frames_stores():
     ]
 
 
-def _store_fields(store, encoder=None):
-    """A frames store name -> the path fields {task, cams, res} (and encoder)."""
-    task, cams, res = store.rsplit("_", 2)
-    return {"task": task, "cams": cams, "res": res, "encoder": encoder}
-
-
 def frames_files(store):
     """A frames store's report and contact sheet."""
-    fields = _store_fields(store)
-    return [paths.FRAMES_REPORT.format(**fields), paths.FRAMES_CONTACT.format(**fields)]
+    return [paths.named(paths.FRAMES_REPORT, store), paths.named(paths.FRAMES_CONTACT, store)]
 
 
 def frames_targets():
@@ -69,7 +62,7 @@ def frames_targets():
 
 def _features_outputs(store, enc):
     out = [paths.features_store(f"{store}_{enc}"), paths.features_diagnostics(f"{store}_{enc}")]
-    return out + ([paths.ATTENTION_FIGURE.format(**_store_fields(store, enc))] if enc in ("slots_ssl", "spot") else [])
+    return out + ([paths.named(paths.ATTENTION_FIGURE, f"{store}_{enc}")] if enc in ("slots_ssl", "spot") else [])
 
 
 def features_targets(encoders=("slots_ssl",)):
