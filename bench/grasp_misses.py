@@ -19,6 +19,7 @@ import torch
 
 from ocpipe.config import experiments
 from ocpipe.config import validate as cfgmod
+from ocpipe.encoders.state import yaw
 from ocpipe.evaluation import closed_loop, jobs
 from ocpipe.frames.store import open_store
 from ocpipe.sim import envs as sim
@@ -27,9 +28,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def yaw_mod90(quat_wxyz: np.ndarray) -> float:
-    w, x, y, z = quat_wxyz
-    yaw = np.degrees(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
-    return float((yaw + 45) % 90 - 45)
+    """The cube's yaw in degrees, folded to [-45, 45): its faces repeat every quarter turn."""
+    return float((np.degrees(yaw(quat_wxyz)) + 45) % 90 - 45)
 
 
 def demo_grasps(frames_path: Path) -> None:

@@ -66,9 +66,10 @@ def check_checkpoint(checkpoint, policy: PolicySettings | dict, meta: dict, fram
             "rerun the workflow to rebuild and retrain")
     attrs = open_store(frames_store).attrs.asdict()
     for key, attr in (("task", "task"), ("cams", "camera_set"), ("resolution", "resolution")):
-        if attr in attrs and getattr(policy, key) != attrs[attr]:
+        got = getattr(policy, key)
+        if attr in attrs and got != attrs[attr]:
             raise ValueError(
-                f"{checkpoint}: trained for {key} {getattr(policy, key)!r}, but {frames_store} is a frames store of "
+                f"{checkpoint}: trained for {key} {got!r}, but {frames_store} is a frames store of "
                 f"{attr} {attrs[attr]!r}: give the frames store it was trained on ({meta.get('frames_store')})")
     if encoder_checkpoint and meta.get("encoder_checkpoint_sha256") not in (None, sha256(encoder_checkpoint)):
         raise ValueError(f"{encoder_checkpoint} is not the encoder checkpoint that {checkpoint} was trained on "

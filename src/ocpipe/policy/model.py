@@ -68,9 +68,13 @@ class SequencePolicy(nn.Module):
         nn.init.normal_(self.pos, std=0.02)
         nn.init.normal_(self.action_token, std=0.02)
 
-    def _visual(self, tokens):
-        vis = self.visual((tokens - self.token_mean) / self.token_std)  # (B, T, C, k, W)
+    def _visual(self, z):
+        """Standardized tokens (B, T, C, K, D) -> (B, T, C, k, W)."""
+        vis = self.visual(z)
         return self.fusion(vis) if self.fusion is not None else vis
+
+    def _standardize(self, tokens):
+        return (tokens - self.token_mean) / self.token_std
 
     def tokens(self, tokens, proprio, goal, first=None):
         """(B, T, C, K, D), (B, T, P), (B, T, G) [, first frame (B, C, K, D)] -> the flattened sequence
@@ -78,12 +82,13 @@ class SequencePolicy(nn.Module):
         B, T = tokens.shape[:2]
         if T != self.T:
             raise ValueError(f"policy expects windows of T={self.T} steps, got {T}")
-        parts = [self._visual(tokens).flatten(2, 3), self.proprio(proprio)[:, :, None]]
+        z = self._standardize(tokens)
+        parts = [self._visual(z).flatten(2, 3), self.proprio(proprio)[:, :, None]]
         if self.goal is not None:
             parts.append(self.goal(goal)[:, :, None])
         readout = None
         if self.object_readout is not None:
-            readout = self.object_readout(((tokens - self.token_mean) / self.token_std).flatten(2))
+            readout = self.object_readout(z.flatten(2))
             parts.append(self.object_token(readout.detach())[:, :, None])
         parts.append(self.action_token.expand(B, T, 1, -1))
         seq = torch.cat(parts, dim=2).flatten(1, 2) + self.pos
@@ -91,7 +96,8 @@ class SequencePolicy(nn.Module):
             return seq, readout
         if first is None:
             raise ValueError("this policy was trained with first_frame: true and needs the episode's first frame")
-        return torch.cat([self._visual(first[:, None]).flatten(1, 3) + self.first_pos, seq], dim=1), readout
+        prefix = self._visual(self._standardize(first[:, None])).flatten(1, 3) + self.first_pos
+        return torch.cat([prefix, seq], dim=1), readout
 
     def forward(self, tokens, proprio, goal, first=None, all_steps: bool = False, aux: bool = False):
         """-> (B, H, 8) predictions for the current step, or (B, T, H, 8) for every step's action token; with

@@ -69,11 +69,17 @@ def split_episodes(offsets, val_episodes: int, source: str = "") -> tuple[np.nda
     return np.arange(cut), np.arange(cut, offsets[-1])
 
 
+def gather_tokens(tokens, frames: np.ndarray, block: int = 1024) -> np.ndarray:
+    """The tokens of sorted frame ids ``frames``, read a block of frames at a time (a token store decompresses
+    whole chunks: one read per frame would decompress a chunk per frame)."""
+    return np.concatenate([tokens[lo : lo + block][frames[(frames >= lo) & (frames < lo + block)] - lo]
+                           for lo in range(0, int(frames[-1]) + 1, block)])
+
+
 def token_stats(tokens, frames: np.ndarray, max_frames: int = 20000) -> tuple[np.ndarray, np.ndarray]:
     """Per-dimension mean/std of the visual tokens (pooled over cameras and slots) on evenly spaced training frames."""
     pick = frames[np.unique(np.linspace(0, len(frames) - 1, min(len(frames), max_frames)).round().astype(int))]
-    x = np.concatenate([tokens[lo : lo + 1024][pick[(pick >= lo) & (pick < lo + 1024)] - lo]
-                        for lo in range(0, int(pick[-1]) + 1, 1024)]).astype(np.float64)
+    x = gather_tokens(tokens, pick).astype(np.float64)
     x = x.reshape(-1, x.shape[-1])
     return x.mean(0).astype(np.float32), np.maximum(x.std(0), normalization.EPS).astype(np.float32)
 
@@ -82,8 +88,8 @@ def load_data(policy: PolicySettings | dict, features_path, frames_path):
     """-> (tokens array, Labels, normalization stats computed from the training frames, meta, (train, val) frames)."""
     policy = PolicySettings.of(policy)
     goal = (goal_source(policy),) if policy.goal != "none" else ()
-    aux = ("obj_pos",) if policy.aux_object_weight > 0 else ()
-    aux += ("obj_pos", "obj_quat") if policy.object_readout else ()
+    reads_obj = policy.aux_object_weight > 0 or policy.object_readout
+    aux = ("obj_pos",) * reads_obj + ("obj_quat",) * policy.object_readout
     tcp = ("tcp_pos",) if policy.proprio == "joints7_tcp" else ()
     feats, frames = open_features(features_path), open_store(frames_path, need=("qpos", "action", *goal, *aux, *tcp))
     check_provenance(feats, features_path, frames, frames_path)
@@ -112,18 +118,18 @@ def load_data(policy: PolicySettings | dict, features_path, frames_path):
         model_action = action
     else:
         model_action = normalization.action_to_model(action, stats)
+    obj = frames["obj_pos"][:].astype(np.float32) if reads_obj else None
     if policy.aux_object_weight > 0:
-        obj = frames["obj_pos"][:].astype(np.float32)
         stats["aux_mean"], stats["aux_std"] = obj[train_frames].mean(0), np.maximum(obj[train_frames].std(0), 1e-6)
         extra["aux"] = ((obj - stats["aux_mean"]) / stats["aux_std"]).astype(np.float32)
     if policy.object_readout:
-        pose = state_tokens(frames["obj_pos"][:], frames["obj_quat"][:])[:, 0, 0]
+        pose = state_tokens(obj, frames["obj_quat"][:])[:, 0, 0]
         stats["readout_mean"] = pose[train_frames].mean(0)
         stats["readout_std"] = np.maximum(pose[train_frames].std(0), 1e-6)
         extra["readout"] = ((pose - stats["readout_mean"]) / stats["readout_std"]).astype(np.float32)
     if policy.first_frame:
         starts = np.asarray(offsets[:-1], dtype=np.int64)
-        extra["first"] = (starts, np.stack([np.asarray(tokens[s : s + 1], dtype=np.float32)[0] for s in starts]))
+        extra["first"] = (starts, gather_tokens(tokens, starts).astype(np.float32))
     if policy.token_norm == "zscore":
         stats["token_mean"], stats["token_std"] = token_stats(tokens, train_frames)
     labels = Labels.from_offsets(
