@@ -17,6 +17,7 @@ from test_frames_store import write_shard
 from ocpipe.config import validate as C
 from ocpipe.demos.files import DemoError, check_pair, episodes
 from ocpipe.demos.merge import import_official, merge
+from ocpipe.encoders.state import StateEncoder
 from ocpipe.evaluation import closed_loop
 from ocpipe.features import encode
 from ocpipe.frames import render, replay
@@ -249,6 +250,14 @@ def test_checkpoint_of_another_task_or_encoder_is_refused_before_the_simulator_s
     with pytest.raises(ValueError, match=rf"{other_weights} is not the encoder checkpoint that {ckpt} was trained "
                                          r"on \(sha256 differs\)"):
         closed_loop.check_checkpoint(ckpt, policy, meta, store, other_weights)
+
+
+def test_control_checkpoint_of_another_state_token_layout_is_refused(tmp_path):
+    ckpt = tmp_path / "epoch_0016.pt"
+    closed_loop.check_state_tokens(ckpt, {"D": 8}, StateEncoder(tcp_relative=True))
+    with pytest.raises(ValueError, match=rf"{ckpt}: trained on 5-dim state tokens, but encoders.state.tcp_relative "
+                                         r"= True makes 8-dim ones"):
+        closed_loop.check_state_tokens(ckpt, {"D": 5}, StateEncoder(tcp_relative=True))
 
 
 # 6. a config whose experiment names an unknown key --------------------------------------------------------------

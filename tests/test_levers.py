@@ -41,6 +41,8 @@ def test_state_tokens_encode_yaw_with_the_cubes_quarter_turn_symmetry():
     np.testing.assert_allclose(a, b, atol=1e-6)
     c = state_tokens(np.array([0.1, -0.2, 0.02]), _quat_z(np.pi / 8))  # 4 * 22.5 deg = 90 deg
     np.testing.assert_allclose(c[0, 0], [0.1, -0.2, 0.02, 1.0, 0.0], atol=1e-6)
+    d = state_tokens(np.array([0.1, -0.2, 0.02]), _quat_z(np.pi / 8), tcp_pos=np.array([0.0, 0.1, 0.2]))
+    np.testing.assert_allclose(d[0, 0], [0.1, -0.2, 0.02, 1.0, 0.0, 0.1, -0.3, -0.18], atol=1e-6)
 
 
 def test_residual_targets_round_trip_to_the_expert_actions():

@@ -46,3 +46,17 @@ def test_mlp_probe_is_seeded():
     a = probes.probe(tokens, {"obj_pos": pos}, ep, seed=3, mlp_epochs=3)
     b = probes.probe(tokens, {"obj_pos": pos}, ep, seed=3, mlp_epochs=3)
     assert a == b
+
+
+def test_first_frame_probe_scores_only_each_held_out_episodes_first_frame():
+    """Tokens that hold the position on every frame but the first of each episode (as when a probe can read the
+    object off the gripper that reached it): the all-frames error stays small, the first-frames error does not."""
+    rng = np.random.default_rng(4)
+    tokens, pos, ep = _store(rng)
+    first = np.r_[True, ep[1:] != ep[:-1]]
+    tokens[first] = rng.normal(size=tokens[first].shape)
+    res = probes.probe(tokens, {"obj_pos": pos}, ep, holdout=0.2, seed=0, mlp_epochs=0)["obj_pos"]
+    assert res["ridge"]["median_cm"] < 2.0 < res["mean"]["median_cm"] < res["first_frames"]["ridge"]["median_cm"]
+    tokens, pos, ep = _store(np.random.default_rng(4))
+    clean = probes.probe(tokens, {"obj_pos": pos}, ep, holdout=0.2, seed=0, mlp_epochs=0)
+    assert clean["obj_pos"]["first_frames"]["ridge"]["median_cm"] < 0.5

@@ -5,7 +5,7 @@ import h5py
 import numpy as np
 import torch
 
-from ocpipe.encoders.state import state_tokens
+from ocpipe.encoders.state import StateEncoder, state_tokens
 from ocpipe.frames.replay import Replayer
 from ocpipe.sim import envs
 
@@ -32,13 +32,15 @@ def test_training_and_evaluation_tokens_agree_on_a_replayed_episode(tmp_path, de
     env = envs.make_env("PickCube-v1", default_config, None)
     env.reset(seed=seed)
     rng = np.random.default_rng(0)
-    states, actions, eval_tokens, eval_tcp = {}, [], [], []
+    relative = StateEncoder(tcp_relative=True)
+    states, actions, eval_tokens, eval_relative, eval_tcp = {}, [], [], [], []
     for t in range(steps + 1):
         _stack(states, env.unwrapped.get_state_dict())
         r = envs.task_readouts(env)
         if t == steps:
             break
         eval_tokens.append(state_tokens(r["obj_pos"], r["obj_quat"]))
+        eval_relative.append(relative.tokens_from_labels(r))  # what the closed loop feeds a tcp_relative control
         eval_tcp.append(r["tcp_pos"])  # what a joints7_tcp policy reads in evaluation
         action = np.concatenate([r["qpos"][:7] + rng.normal(0, 0.05, 7), [1.0 if t > 6 else -1.0]]).astype(np.float32)
         actions.append(action)
@@ -61,3 +63,9 @@ def test_training_and_evaluation_tokens_agree_on_a_replayed_episode(tmp_path, de
     assert train_tokens.shape == (steps, 1, 1, 5)
     np.testing.assert_allclose(train_tokens, np.stack(eval_tokens), atol=1e-5)
     np.testing.assert_allclose(ep.arrays["tcp_pos"], np.stack(eval_tcp), atol=1e-5)
+    # the TCP-relative token, as the features stage makes it from the frames store's arrays
+    train_relative = state_tokens(ep.arrays["obj_pos"], ep.arrays["obj_quat"], ep.arrays["tcp_pos"])
+    assert train_relative.shape == (steps, 1, 1, relative.dims) == (steps, 1, 1, 8)
+    np.testing.assert_allclose(train_relative, np.stack(eval_relative), atol=1e-5)
+    # and the arm moved, so the offset from the TCP is not the object's position in disguise
+    assert np.ptp(train_relative[:, 0, 0, 5:] - train_relative[:, 0, 0, :3], axis=0).max() > 0.01

@@ -21,7 +21,7 @@ def build(name: str, encoders_cfg: dict, frames_path: str | Path, trained_checkp
     if name == "state":
         from .state import StateEncoder
 
-        return StateEncoder()
+        return StateEncoder(**encoders_cfg.get("state", {}))
     store = open_store(frames_path)
     if name == "slots_ssl":
         from .frozen_ssl import FrozenSSLSlots

@@ -19,7 +19,6 @@ import torch
 from tqdm import tqdm
 
 from ..encoders import registry
-from ..encoders.state import state_tokens
 from ..features.encode import sha256
 from ..features.slot_geometry import full_image_windows, slot_geometry
 from ..frames.store import open_store
@@ -76,6 +75,15 @@ def check_checkpoint(checkpoint, policy: PolicySettings | dict, meta: dict, fram
                          "(sha256 differs): rebuild the features store and retrain")
 
 
+def check_state_tokens(checkpoint, meta: dict, encoder) -> None:
+    """A control trained on state tokens of one layout (encoders.state) cannot read another's."""
+    if encoder.dims != meta["D"]:
+        raise ValueError(
+            f"{checkpoint}: trained on {meta['D']}-dim state tokens, but encoders.state.tcp_relative = "
+            f"{encoder.tcp_relative} makes {encoder.dims}-dim ones: set it back, or rerun the workflow to rebuild "
+            "the state features store and retrain")
+
+
 class ClosedLoop:
     """One environment + the frozen encoder + one policy checkpoint.
 
@@ -90,6 +98,8 @@ class ClosedLoop:
         self.encoder = to_device(registry.build(p.encoder, config["encoders"], frames_store, encoder_checkpoint),
                                  self.device)
         self.reads_labels = getattr(self.encoder, "reads_labels", False)
+        if self.reads_labels:
+            check_state_tokens(checkpoint, self.meta, self.encoder)
         self.task = p.task
         self.camera_names = list(envs.CAMERA_SETS[p.cams])
         self.uids = [envs.SIM_CAMERA_UID[c] for c in self.camera_names]
@@ -126,7 +136,7 @@ class ClosedLoop:
     def _tokens(self, obs, labels: dict) -> torch.Tensor:
         """This step's visual tokens (C, K, D), exactly as the policy saw them in training."""
         if self.reads_labels:
-            return torch.from_numpy(state_tokens(labels["obj_pos"], labels["obj_quat"]))[self.policy.cameras]
+            return torch.from_numpy(self.encoder.tokens_from_labels(labels))[self.policy.cameras]
         rgb = torch.stack([obs["sensor_data"][u]["rgb"][0] for u in self.uids])[None].cpu()
         tokens, masks = self.encoder.encode(rgb.to(self.device))
         # the policy was trained on tokens as stored (float16 by default): round the same way

@@ -126,7 +126,7 @@ def _write_label_tokens(encoder, frames: zarr.Group, frames_path, out_path, chun
         root = zarr.open_group(str(tmp), mode="w", zarr_format=3)
         root.create_array("tokens", shape=tokens.shape, dtype="float32", chunks=(chunk_frames, *tokens.shape[1:]))
         root["tokens"][...] = tokens
-        root.attrs.update(_provenance(encoder, frames, frames_path))
+        root.attrs.update({**_provenance(encoder, frames, frames_path), **getattr(encoder, "extra_attrs", {})})
     return {"frames": len(tokens), "seconds": 0.0, "frames_per_second": None}
 
 

@@ -75,8 +75,10 @@ def probe(tokens: np.ndarray, targets: dict[str, np.ndarray], episode_index: np.
           seed: int = 0, mlp_epochs: int = 150) -> dict:
     """``tokens`` (N, ...) per frame; ``targets`` name -> (N, 3) positions in metres.
 
-    -> {"train_frames", "test_frames", "test_episodes", name: {"mean": {...}, "ridge": {...}, "mlp": {...}}}, errors
-    in cm on the held-out episodes."""
+    -> {"train_frames", "test_frames", "test_episodes", name: {"mean": {...}, "ridge": {...}, "mlp": {...},
+    "first_frames": {"ridge": {...}, "mlp": {...}}}}, errors in cm on the held-out episodes; "first_frames" scores
+    only each held-out episode's first frame, where the arm is still far from the object: over all frames a probe
+    can place the object by the gripper that holds or approaches it, on first frames only by the object itself."""
     x = tokens.reshape(len(tokens), -1).astype(np.float32)
     train, test = episode_split(episode_index, holdout)
     out = {"train_frames": int(train.sum()), "test_frames": int(test.sum()),
@@ -85,10 +87,12 @@ def probe(tokens: np.ndarray, targets: dict[str, np.ndarray], episode_index: np.
     # one MLP for every target at once: the probe asks what the tokens hold, not how well 3 nets can be tuned
     joint = (mlp(x[train], np.concatenate([y[train] for y in ys.values()], 1), x[test], seed, epochs=mlp_epochs)
              if mlp_epochs > 0 and ys else None)
+    starts = np.r_[True, episode_index[1:] != episode_index[:-1]][test]  # first frames among the test frames
     for i, (name, y) in enumerate(ys.items()):
         baseline = np.broadcast_to(y[train].mean(0), y[test].shape)
-        out[name] = {"mean": error_cm(baseline, y[test]),
-                     "ridge": error_cm(ridge(x[train], y[train], x[test]), y[test])}
+        pred = {"ridge": ridge(x[train], y[train], x[test])}
         if joint is not None:
-            out[name]["mlp"] = error_cm(joint[:, 3 * i: 3 * i + 3], y[test])
+            pred["mlp"] = joint[:, 3 * i: 3 * i + 3]
+        out[name] = {"mean": error_cm(baseline, y[test]), **{k: error_cm(p, y[test]) for k, p in pred.items()},
+                     "first_frames": {k: error_cm(p[starts], y[test][starts]) for k, p in pred.items()}}
     return out

@@ -52,11 +52,15 @@ def summary_lines(results: str | Path) -> list[str]:
             p = r["probes"]
             reads = "; ".join(
                 f"{name.removesuffix('_pos')} "
-                + ", ".join(f"{kind} {v['median_cm']:.1f}" for kind, v in p[name].items())
+                + ", ".join(f"{kind} {v['median_cm']:.1f}" for kind, v in p[name].items() if kind != "first_frames")
                 for name in probes.TARGETS
                 if name in p
             )
             lines.append(f"          position probes, median cm on {p['test_episodes']} held-out episodes: {reads}")
+            first = p.get("obj_pos", {}).get("first_frames")
+            if first:  # the object alone: the arm is not yet there to give it away
+                reads = ", ".join(f"{kind} {v['median_cm']:.1f}" for kind, v in first.items())
+                lines.append(f"          object on those episodes' first frames only: {reads}")
     for path in sorted(results.glob("runs/*/train_log.parquet")):
         import polars as pl
 
