@@ -27,6 +27,8 @@ SPOT_SLOTS = RESULTS + "/encoders/spot"
 FEATURES_STORE = RESULTS + "/features/{task}_{cams}_{res}_{encoder}.zarr"
 FEATURES_DIAGNOSTICS = RESULTS + "/features/{task}_{cams}_{res}_{encoder}.diagnostics.json"
 ATTENTION_FIGURE = RESULTS + "/figures/attention_{task}_{cams}_{res}_{encoder}.png"
+# extra labelled scenes encoded by a features store's encoder, for the object read-out (policy.readout_scenes)
+SCENES_STORE = RESULTS + "/features/{task}_{cams}_{res}_{encoder}.scenes.zarr"
 
 # one folder per experiment: training, then evaluation
 RUN = RESULTS + "/runs/{exp}"

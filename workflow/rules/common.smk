@@ -42,6 +42,15 @@ def demo_params():
     return {"sim": sim, **cfg("demos"), "evaluation": pool}
 
 
+def scene_params():
+    """What the scenes job reads: the rendering settings, the encoders, the scene count and seeds, and only the
+    bounds of the demo and evaluation seeds it must stay clear of."""
+    demos = {k: config["demos"][k] for k in ("seed_start", "num_demos", "attempts_per_demo")}
+    pool = {k: config["evaluation"][k] for k in ("seed_pool_start", "seed_pool_size")}
+    frames = {"goal_marker_visible": config["frames"]["goal_marker_visible"]}
+    return {**cfg("sim", "cameras", "encoders", "scenes"), "frames": frames, "demos": demos, "evaluation": pool}
+
+
 def frames_stores():
     return [
         f"{task}_{cams}_{res}"
@@ -99,6 +108,16 @@ def encoder_checkpoint(encoder):
 def policy_of(w):
     """The resolved policy settings of the job's experiment."""
     return _exp.resolve(config, w.exp)
+
+
+def train_inputs(w):
+    """A policy's features and frames stores, and the scenes store when its object read-out is fitted on scenes."""
+    p = policy_of(w)
+    store = _exp.features_store(p)
+    out = {"features": paths.features_store(store), "frames": paths.frames_store(_exp.frames_store(p))}
+    if p.get("readout_scenes"):
+        out["scenes"] = paths.named(paths.SCENES_STORE, store)
+    return out
 
 
 def eval_inputs(w):

@@ -24,6 +24,29 @@ rule features:
         "../scripts/features.py"
 
 
+rule scenes:
+    input:
+        frames=paths.FRAMES_STORE,
+        ckpt=lambda w: encoder_checkpoint(w.encoder),
+    output:
+        store=directory(paths.SCENES_STORE),
+    log:
+        "results/logs/scenes/{task}_{cams}_{res}_{encoder}.log",
+    benchmark:
+        "results/benchmarks/scenes/{task}_{cams}_{res}_{encoder}.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
+    threads: threads_of("frames")
+    resources:
+        **resources_of("frames"),
+    params:
+        config=scene_params(),
+        dtype=config["features"]["dtype"],
+        seed=config["seed"],
+    script:
+        "../scripts/scenes.py"
+
+
 rule features_diagnostics:
     input:
         frames=paths.FRAMES_STORE,

@@ -3,8 +3,7 @@
 
 rule train:
     input:
-        features=lambda w: paths.features_store(_exp.features_store(policy_of(w))),
-        frames=lambda w: paths.frames_store(_exp.frames_store(policy_of(w))),
+        unpack(train_inputs),
     output:
         checkpoints=directory(paths.CHECKPOINTS),
         log=paths.TRAIN_LOG,

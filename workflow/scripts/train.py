@@ -5,5 +5,6 @@ from ocpipe.util import runlog
 
 with runlog.to_file(snakemake.log[0]):
     table = training.train(snakemake.params.policy, snakemake.params.seed, snakemake.input.features,
-                           snakemake.input.frames, Path(snakemake.output.log).parent, threads=snakemake.threads)
+                           snakemake.input.frames, Path(snakemake.output.log).parent, threads=snakemake.threads,
+                           scenes_path=getattr(snakemake.input, "scenes", None))
     print(table)

@@ -46,6 +46,12 @@ def problems(policy: dict) -> list[str]:
             out.append(f"  {key}.cameras: the 'state' control has one token stream: cameras [0]")
     if policy.get("slot_geometry") and policy["encoder"] not in ("slots_ssl", "spot"):
         out.append(f"  {key}.slot_geometry: needs a slot encoder with masks (slots_ssl or spot)")
+    if policy.get("readout_scenes"):
+        if not policy.get("object_readout"):
+            out.append(f"  {key}.readout_scenes: fits the object read-out, so it needs object_readout: true")
+        if policy["encoder"] == "state" or policy.get("slot_geometry"):
+            out.append(f"  {key}.readout_scenes: needs an image encoder without slot_geometry (scenes store tokens "
+                       "carry no mask geometry)")
     return out
 
 

@@ -98,6 +98,19 @@ def demo_seed_range(config: dict) -> range:
     return range(d["seed_start"], d["seed_start"] + d["num_demos"] * d["attempts_per_demo"])
 
 
+def scene_seed_problems(config: dict) -> list[str]:
+    """Scene seeds (config `scenes`) must clear the demo seeds (the read-out would see demo scenes twice) and the
+    evaluation pool (it would have seen the held-out episodes' first frames)."""
+    start = config["scenes"]["seed_start"]
+    scenes = range(start, start + config["scenes"]["count"])
+    pool_start = config["evaluation"]["seed_pool_start"]
+    pools = {"the demo seeds": demo_seed_range(config),
+             "the evaluation pool": range(pool_start, pool_start + config["evaluation"]["seed_pool_size"])}
+    return [f"  scenes.seed_start: scene seeds {scenes.start}..{scenes.stop - 1} overlap {what} "
+            f"{pool.start}..{pool.stop - 1}; move scenes.seed_start past both"
+            for what, pool in pools.items() if scenes.start < pool.stop and pool.start < scenes.stop]
+
+
 def _cross_field_problems(config: dict) -> list[str]:
     problems = []
     seeds = demo_seed_range(config)
@@ -132,6 +145,7 @@ def _cross_field_problems(config: dict) -> list[str]:
             problems.append(
                 f"  evaluation.{key}: {ev[key]} episodes > evaluation.seed_pool_size {ev['seed_pool_size']}"
             )
+    problems += scene_seed_problems(config)
     problems += policy_problems(config["policy"])
     for name in config["experiments"]:
         problems += [p for p in policy_problems(resolve(config, name)) if p not in problems]

@@ -51,6 +51,7 @@ class PolicySettings:
     lr_schedule: str = "constant"  # constant | cosine
     first_frame: bool = False  # the episode's first-frame tokens before the T steps
     object_readout: bool = False  # a token per step: the object's pose read off the frozen tokens
+    readout_scenes: bool = False  # fit that read-out first on the demo frames plus extra scenes, then freeze it
     val_episodes: int = 0  # last demos held out of training for the open-loop error
     name: str | None = None  # the experiment's name (config `experiments`)
 

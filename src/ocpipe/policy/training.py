@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from ..encoders.state import state_tokens
 from ..features.encode import PolicyTokens, check_provenance, open_features
+from ..features.scenes import open_scenes
 from ..frames.store import open_store
 from ..util.atomic import atomic_path
 from ..util.devices import pick_device
@@ -74,6 +75,37 @@ def gather_tokens(tokens, frames: np.ndarray, block: int = 1024) -> np.ndarray:
     whole chunks: one read per frame would decompress a chunk per frame)."""
     return np.concatenate([tokens[lo : lo + block][frames[(frames >= lo) & (frames < lo + block)] - lo]
                            for lo in range(0, int(frames[-1]) + 1, block)])
+
+
+def fit_readout(model, tokens, readout_targets: np.ndarray, train_frames: np.ndarray, scenes, stats: dict,
+                cameras: list[int], seed: int, epochs: int = 40, batch: int = 256) -> float:
+    """Fit the policy's object read-out on the training demos' frames plus the scenes store's scenes (the same
+    pose targets, standardized as for the demos), then freeze it: the policy trains around a fixed estimate of
+    where the object is, fitted on far more placements than the demos show. -> the last batch's loss."""
+    cams = list(cameras)
+    demo = gather_tokens(tokens, train_frames)[:, cams].astype(np.float32)
+    pose = state_tokens(scenes["obj_pos"][...], scenes["obj_quat"][...])[:, 0, 0]
+    y = np.concatenate([readout_targets[train_frames], (pose - stats["readout_mean"]) / stats["readout_std"]])
+    x = np.concatenate([demo, scenes["tokens"][...][:, cams].astype(np.float32)])
+    device = model.token_mean.device
+    with torch.no_grad():
+        xz = model._standardize(torch.from_numpy(x).to(device)).flatten(1)
+    yt = torch.from_numpy(y.astype(np.float32)).to(device)
+    readout = model.object_readout
+    opt = torch.optim.AdamW(readout.parameters(), lr=1e-3, weight_decay=1e-4)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, epochs * -(-len(xz) // batch))
+    gen = torch.Generator().manual_seed(seed)
+    for _ in range(epochs):
+        for idx in torch.randperm(len(xz), generator=gen).split(batch):
+            loss = torch.nn.functional.mse_loss(readout(xz[idx]), yt[idx])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+    readout.requires_grad_(False)
+    log.info("object read-out fitted on %d demo frames and %d scenes, then frozen (loss %.4f)", len(demo),
+             len(x) - len(demo), loss.item())
+    return float(loss)
 
 
 def token_stats(tokens, frames: np.ndarray, max_frames: int = 20000) -> tuple[np.ndarray, np.ndarray]:
@@ -186,6 +218,7 @@ def train(
     threads: int = 1,
     progress: bool = True,
     on_epoch_end=None,
+    scenes_path=None,
 ) -> pl.DataFrame:
     from ..config.experiments import saved_epochs
 
@@ -199,7 +232,14 @@ def train(
 
     torch.manual_seed(seed)
     model = build_model(policy, meta, stats).to(device)
-    opt = torch.optim.AdamW(model.parameters(), lr=policy.lr, weight_decay=policy.weight_decay)
+    if policy.readout_scenes:
+        if scenes_path is None:
+            raise ValueError(f"policy {policy.name!r} has readout_scenes: true but no scenes store was given")
+        scenes = open_scenes(scenes_path, meta["encoder_checkpoint_sha256"])
+        fingerprint = _fingerprint(policy, seed, {**meta, "scenes_store": str(scenes_path)})
+        fit_readout(model, tokens, labels.readout, train_frames, scenes, stats, policy.cameras, seed)
+    opt = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=policy.lr,
+                            weight_decay=policy.weight_decay)
     history: list[dict] = []
     start = 0
     state_path = work / "state.pt"

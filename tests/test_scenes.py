@@ -1,0 +1,110 @@
+"""Extra labelled scenes for the object read-out: what the scenes store holds, and a policy whose read-out is
+fitted on them and then stays frozen."""
+
+import numpy as np
+import pytest
+import torch
+import zarr
+from policy_stores import policy_settings, write_stores
+from test_frames_store import write_shard
+
+from ocpipe.config import validate as C
+from ocpipe.encoders.state import state_tokens
+from ocpipe.features import scenes
+from ocpipe.policy.training import load_policy, train
+from ocpipe.sim import envs
+
+
+class MeanColour:
+    """A stand-in frozen encoder: per camera, one token holding the image's mean colour."""
+
+    name = "mean_colour"
+    checkpoint = None
+
+    def encode(self, rgb):  # (B, C, H, W, 3) uint8
+        return (rgb.float().mean(dim=(2, 3)) / 255)[:, :, None, :], None
+
+
+def test_scenes_hold_the_reset_scene_drawn_with_a_demo_arm_pose(tmp_path, default_config):
+    frames = tmp_path / "f.zarr"
+    write_shard(frames, [4, 3], 0)
+    out = tmp_path / "s.zarr"
+    scenes.render_scenes(MeanColour(), default_config, "PickCube-v1", "dual", 32, frames, out, 3, 50_000, seed=0)
+    root = zarr.open_group(str(out), mode="r")
+    assert root["tokens"].shape == (3, 2, 1, 3) and root["tokens"].dtype == np.float16
+    assert root.attrs["seed_start"] == 50_000 and root.attrs["count"] == 3 and root.attrs["encoder"] == "mean_colour"
+    assert not list(tmp_path.glob(".tmp-*"))
+    env = envs.make_env("PickCube-v1", default_config, None)
+    try:
+        for i in range(3):
+            env.reset(seed=50_000 + i)
+            r = envs.task_readouts(env)
+            np.testing.assert_allclose(root["obj_pos"][i], r["obj_pos"], atol=1e-6)  # where the reset put it
+            assert np.linalg.norm(root["tcp_pos"][i] - r["tcp_pos"]) > 0.01  # the arm moved off its reset pose
+    finally:
+        env.close()
+    assert np.ptp(root["tokens"][...].astype(np.float32), axis=0).max() > 0  # rendered scenes, not one image
+    again = tmp_path / "again.zarr"
+    scenes.render_scenes(MeanColour(), default_config, "PickCube-v1", "dual", 32, frames, again, 3, 50_000, seed=0)
+    np.testing.assert_array_equal(zarr.open_group(str(again), mode="r")["tokens"][...], root["tokens"][...])
+
+
+def test_scene_seeds_must_clear_the_demo_seeds_and_the_evaluation_pool(tmp_path, default_config):
+    with pytest.raises(ValueError, match=r"scenes.seed_start: scene seeds 10000\.\.10002 overlap the evaluation pool"):
+        scenes.render_scenes(MeanColour(), default_config, "PickCube-v1", "dual", 32, tmp_path / "f.zarr",
+                             tmp_path / "s.zarr", 3, 10_000, seed=0)
+    bad = {**default_config, "scenes": {"count": 10, "seed_start": 5}}
+    with pytest.raises(C.ConfigError, match=r"scenes.seed_start: scene seeds 5\.\.14 overlap the demo seeds"):
+        C.validate(bad)
+    assert not (tmp_path / "s.zarr").exists()
+
+
+def test_readout_scenes_needs_the_object_readout(default_config):
+    cfg = {**default_config, "experiments": {**default_config["experiments"], "x": {"readout_scenes": True}}}
+    with pytest.raises(C.ConfigError, match=r"experiments.x.readout_scenes: .* needs object_readout: true"):
+        C.validate(cfg)
+
+
+def _scenes_store(path, n, C, K, D, seed, sha=None):
+    """Tokens whose first three dims of camera 0, slot 0 hold the object's position (x 10); the rest is noise."""
+    rng = np.random.default_rng(seed)
+    pos = rng.uniform(-0.1, 0.1, (n, 3)).astype(np.float32)
+    quat = np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1))
+    tok = rng.normal(0, 1, (n, C, K, D)).astype(np.float32)
+    tok[:, 0, 0, :3] = pos * 10
+    root = zarr.open_group(str(path), mode="w", zarr_format=3)
+    for name, arr in {"tokens": tok.astype(np.float16), "obj_pos": pos, "obj_quat": quat, "tcp_pos": pos}.items():
+        root.create_array(name, shape=arr.shape, dtype=arr.dtype)
+        root[name][...] = arr
+    root.attrs.update({"checkpoint_sha256": sha})
+    return tok, pos, quat
+
+
+def test_a_readout_fitted_on_scenes_reads_them_and_stays_frozen(tmp_path):
+    feats, frames = write_stores(tmp_path, C=2, K=7, D=16)  # demo tokens are noise: only the scenes teach it
+    _scenes_store(tmp_path / "s.zarr", 2000, 2, 7, 16, seed=1)
+    policy = policy_settings(object_readout=True, readout_scenes=True, epochs=2, save_every=1)
+    train(policy, 0, feats, frames, tmp_path / "run", progress=False, scenes_path=tmp_path / "s.zarr")
+    ckpts = [torch.load(tmp_path / "run" / "checkpoints" / f"epoch_000{e}.pt", weights_only=False)["model"]
+             for e in (1, 2)]
+    readout = [k for k in ckpts[0] if k.startswith("object_readout.")]
+    assert readout and all(torch.equal(ckpts[0][k], ckpts[1][k]) for k in readout)
+    assert any(not torch.equal(ckpts[0][k], ckpts[1][k]) for k in ckpts[0] if k.startswith("decoder."))
+
+    model, stats, _, _ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0002.pt")
+    tok, pos, quat = _scenes_store(tmp_path / "new.zarr", 300, 2, 7, 16, seed=2)  # scenes it never saw
+    with torch.no_grad():
+        pred = model.object_readout(model._standardize(torch.from_numpy(tok)).flatten(1)).numpy()
+    got = pred[:, :3] * stats["readout_std"][:3] + stats["readout_mean"][:3]
+    err = np.linalg.norm(got - pos, axis=1)
+    mean_err = np.linalg.norm(pos - pos.mean(0), axis=1)
+    assert np.median(err) < 0.5 * np.median(mean_err)
+    assert state_tokens(pos, quat).shape == (300, 1, 1, 5)
+
+
+def test_a_scenes_store_of_other_encoder_weights_is_refused(tmp_path):
+    feats, frames = write_stores(tmp_path)
+    _scenes_store(tmp_path / "s.zarr", 50, 2, 7, 16, seed=1, sha="0" * 64)
+    policy = policy_settings(object_readout=True, readout_scenes=True, epochs=1, save_every=1)
+    with pytest.raises(ValueError, match=r"s.zarr was encoded by other encoder weights than the features store"):
+        train(policy, 0, feats, frames, tmp_path / "run", progress=False, scenes_path=tmp_path / "s.zarr")
