@@ -53,8 +53,10 @@ def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: in
     if (out_dir / "train_log.parquet").is_file():
         log = pl.read_parquet(out_dir / "train_log.parquet")
     else:
+        scenes = results / "features" / f"{store}.scenes.zarr" if policy.get("readout_scenes") else None
         log = train(policy, config["seed"], results / "features" / f"{store}.zarr",
-                    results / "frames" / f"{experiments.frames_store(policy)}.zarr", out_dir, threads=threads)
+                    results / "frames" / f"{experiments.frames_store(policy)}.zarr", out_dir, threads=threads,
+                    scenes_path=scenes)
     train_s = float(log["seconds"].sum())
     torch.set_num_threads(threads)
     ckpt = out_dir / "checkpoints" / f"epoch_{policy['epochs']:04d}.pt"

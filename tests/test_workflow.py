@@ -25,6 +25,7 @@ TINY = {
                                "grid": 16, "batch_size": 8, "warmup_steps": 5, "slot_dim": 32, "feature_dim": 32}},
     "features": {"batch_size": 32, "chunk_frames": 64, "attention_pairs": [[0, 0], [1, 60]],
                  "probe_mlp_epochs": 5},
+    "scenes": {"count": 6},
     "policy": {"resolution": 64, "window": 3, "horizon": 4, "width": 32, "layers": 2, "heads": 4, "epochs": 2,
                "save_every": 2, "batch_size": 16, "lr": 0.001, "val_episodes": 1},
     "evaluation": {"episode_cap": {"PickCube-v1": 12, "StackCube-v1": 12}, "execute_actions": 2, "sweep_episodes": 2,
