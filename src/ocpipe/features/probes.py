@@ -52,18 +52,27 @@ def mlp(x_train: np.ndarray, y_train: np.ndarray, x_test: np.ndarray, seed: int,
     y = torch.as_tensor((y_train - y_mean) / y_std, dtype=torch.float32)
     net = torch.nn.Sequential(torch.nn.Linear(a.shape[1], hidden), torch.nn.GELU(), torch.nn.Linear(hidden, hidden),
                               torch.nn.GELU(), torch.nn.Linear(hidden, y.shape[1]))
-    steps = epochs * max(1, -(-len(a) // batch))
+    fit_mse(net, a, y, gen, epochs, batch, lr)
+    with torch.no_grad():
+        return net(b).numpy() * y_std + y_mean
+
+
+def fit_mse(net, x, y, generator, epochs: int, batch: int = 256, lr: float = 1e-3) -> float:
+    """Fit ``net`` to (x, y) tensors by mean squared error: AdamW (weight decay 1e-4), cosine decay over all steps,
+    batches shuffled by ``generator``. Shared by the probes and the policy's object read-out. -> the last loss."""
+    import torch
+
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, epochs * max(1, -(-len(x) // batch)))
+    loss = torch.zeros(())
     for _ in range(epochs):
-        for idx in torch.randperm(len(a), generator=gen).split(batch):
-            loss = torch.nn.functional.mse_loss(net(a[idx]), y[idx])
+        for idx in torch.randperm(len(x), generator=generator).split(batch):
+            loss = torch.nn.functional.mse_loss(net(x[idx]), y[idx])
             opt.zero_grad()
             loss.backward()
             opt.step()
             sched.step()
-    with torch.no_grad():
-        return net(b).numpy() * y_std + y_mean
+    return loss.item()
 
 
 def error_cm(pred: np.ndarray, truth: np.ndarray) -> dict:

@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from ..encoders.state import state_tokens
 from ..features.encode import PolicyTokens, check_provenance, open_features
+from ..features.probes import fit_mse
 from ..features.scenes import open_scenes
 from ..frames.store import open_store
 from ..util.atomic import atomic_path
@@ -92,20 +93,11 @@ def fit_readout(model, tokens, readout_targets: np.ndarray, train_frames: np.nda
         xz = model._standardize(torch.from_numpy(x).to(device)).flatten(1)
     yt = torch.from_numpy(y.astype(np.float32)).to(device)
     readout = model.object_readout
-    opt = torch.optim.AdamW(readout.parameters(), lr=1e-3, weight_decay=1e-4)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, epochs * -(-len(xz) // batch))
-    gen = torch.Generator().manual_seed(seed)
-    for _ in range(epochs):
-        for idx in torch.randperm(len(xz), generator=gen).split(batch):
-            loss = torch.nn.functional.mse_loss(readout(xz[idx]), yt[idx])
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            sched.step()
+    loss = fit_mse(readout, xz, yt, torch.Generator().manual_seed(seed), epochs, batch)
     readout.requires_grad_(False)
     log.info("object read-out fitted on %d demo frames and %d scenes, then frozen (loss %.4f)", len(demo),
-             len(x) - len(demo), loss.item())
-    return float(loss)
+             len(x) - len(demo), loss)
+    return loss
 
 
 def token_stats(tokens, frames: np.ndarray, max_frames: int = 20000) -> tuple[np.ndarray, np.ndarray]:
