@@ -15,7 +15,8 @@ first frame once before the T steps, so what the cameras saw before the arm came
 stays in view of every query (the T-step window alone forgets it); `object_readout` adds, per step, a token made
 from an MLP's read-out of the object's pose (position, sin/cos of 4x yaw: what the privileged-state control sees)
 from that step's frozen tokens, trained on the frames store's poses and passed on without gradient, so the
-policy gets an explicit object estimate it cannot reshape to fit the actions."""
+policy gets an explicit object estimate it cannot reshape to fit the actions; with `readout_scenes` that read-out
+is fitted before the policy, on the demos' frames plus many extra scenes, and frozen (training.fit_readout)."""
 
 from __future__ import annotations
 
