@@ -152,7 +152,7 @@ def test_table5_2_counts_and_percentages(tmp_path):
     assert t["Drop %"] == pytest.approx(50.0)
 
 
-def test_best_checkpoint_prefers_sr_then_return(tmp_path):
+def test_best_checkpoint_prefers_sr_then_open_loop_error_then_return(tmp_path):
     files = []
     for epoch, succ, ret in ((10, [True, False], 3.0), (20, [True, False], 5.0), (30, [False, False], 9.0)):
         f = tmp_path / f"epoch_{epoch}.episodes.parquet"
@@ -167,6 +167,9 @@ def test_best_checkpoint_prefers_sr_then_return(tmp_path):
     ).write_parquet(log)
     sweep = {r["checkpoint"]: r for r in jobs.best_checkpoint(files, log)["sweep"]}
     assert sweep[20]["val_joint_err_rad"] == 0.2 and sweep[30]["val_gripper_agree"] == 0.9
+    # equal SR: the lower open-loop error wins over the higher return
+    pl.DataFrame({"epoch": [10, 20, 30], "val_joint_err_rad": [0.1, 0.2, 0.3]}).write_parquet(log)
+    assert jobs.best_checkpoint(files, log)["epoch"] == 10
 
 
 def test_report_writes_tables_from_run_files(tmp_path, default_config):

@@ -60,7 +60,8 @@ def test_scene_seeds_must_clear_the_demo_seeds_and_the_evaluation_pool(tmp_path,
 
 
 def test_readout_scenes_needs_the_object_readout(default_config):
-    cfg = {**default_config, "experiments": {**default_config["experiments"], "x": {"object_readout": False, "readout_scenes": True}}}
+    x = {"object_readout": False, "readout_scenes": True}
+    cfg = {**default_config, "experiments": {**default_config["experiments"], "x": x}}
     with pytest.raises(C.ConfigError, match=r"experiments.x.readout_scenes: .* needs object_readout: true"):
         C.validate(cfg)
 

@@ -40,10 +40,14 @@ OPEN_LOOP_COLUMNS = ("val_joint_err_rad", "val_first_joint_err_rad", "val_grippe
 
 
 def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None = None) -> dict:
-    """The checkpoint with the highest sweep SR; ties go to the higher mean return, then the later epoch.
+    """The checkpoint with the highest sweep SR; ties go to the lower open-loop joint error on the held-out demos
+    (with ``train_log`` and held-out demos), then the higher mean return, then the later epoch.
 
     With ``train_log``, each sweep row also carries that epoch's open-loop error on the held-out demos, so a
-    checkpoint's closed-loop SR and its open-loop error sit side by side."""
+    checkpoint's closed-loop SR and its open-loop error sit side by side. A sweep of a few episodes ties often
+    (0/6 against 0/6), and then the open-loop error over every frame of the held-out demos says more than the mean
+    return of those few episodes: in one default build the return picked goal3d's epoch 8 (0.0164 rad), which
+    succeeded in 1 of 60 stability episodes, over epoch 16 (0.0138 rad), which succeeds in 16 of 100."""
     log = pl.read_parquet(train_log) if train_log else None
     rows = []
     for f in sweep_files:
@@ -54,7 +58,12 @@ def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None 
             at = log.filter(pl.col("epoch") == row["checkpoint"])
             row.update({c: float(at[c][0]) for c in OPEN_LOOP_COLUMNS if c in at.columns and len(at)})
         rows.append(row)
-    rows.sort(key=lambda r: (r["sr"] if r["sr"] == r["sr"] else -1.0, r["mean_return"], r["checkpoint"]))
+    def rank(r):
+        err = r.get("val_joint_err_rad")
+        return (r["sr"] if r["sr"] == r["sr"] else -1.0, -err if err == err and err is not None else 0.0,
+                r["mean_return"], r["checkpoint"])
+
+    rows.sort(key=rank)
     return {"epoch": rows[-1]["checkpoint"], "sweep": rows}
 
 
