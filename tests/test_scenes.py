@@ -11,6 +11,7 @@ from test_frames_store import write_shard
 from ocpipe.config import validate as C
 from ocpipe.encoders.state import state_tokens
 from ocpipe.features import scenes
+from ocpipe.policy import training
 from ocpipe.policy.training import load_policy, train
 from ocpipe.sim import envs
 
@@ -109,3 +110,27 @@ def test_a_scenes_store_of_other_encoder_weights_is_refused(tmp_path):
     policy = policy_settings(object_readout=True, readout_scenes=True, epochs=1, save_every=1)
     with pytest.raises(ValueError, match=r"s.zarr was encoded by other encoder weights than the features store"):
         train(policy, 0, feats, frames, tmp_path / "run", progress=False, scenes_path=tmp_path / "s.zarr")
+
+
+def test_a_killed_run_with_a_scenes_readout_resumes_identically_without_refitting_it(tmp_path, monkeypatch):
+    feats, frames = write_stores(tmp_path)
+    _scenes_store(tmp_path / "s.zarr", 300, 2, 7, 16, seed=1)
+    policy = policy_settings(object_readout=True, readout_scenes=True, epochs=4, save_every=2)
+    full = train(policy, 0, feats, frames, tmp_path / "full", progress=False, scenes_path=tmp_path / "s.zarr")
+
+    def kill_after_3(epoch):
+        if epoch == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train(policy, 0, feats, frames, tmp_path / "resumed", progress=False, on_epoch_end=kill_after_3,
+              scenes_path=tmp_path / "s.zarr")
+    fits = []
+    monkeypatch.setattr(training, "fit_readout", lambda *a, **k: fits.append(1))
+    resumed = train(policy, 0, feats, frames, tmp_path / "resumed", progress=False, scenes_path=tmp_path / "s.zarr")
+    assert fits == []  # the read-out came back with the resume state
+    assert resumed.drop("seconds").equals(full.drop("seconds"))
+    a = torch.load(tmp_path / "full" / "checkpoints" / "epoch_0004.pt", weights_only=False)["model"]
+    b = torch.load(tmp_path / "resumed" / "checkpoints" / "epoch_0004.pt", weights_only=False)["model"]
+    for k in a:
+        assert torch.equal(a[k], b[k]), k

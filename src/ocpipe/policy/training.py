@@ -220,31 +220,35 @@ def train(
     work = out_dir / ".train"
     device = pick_device(policy.device)
     tokens, labels, stats, meta, (train_frames, val_frames) = load_data(policy, features_path, frames_path)
-    fingerprint = _fingerprint(policy, seed, meta)
-
-    torch.manual_seed(seed)
-    model = build_model(policy, meta, stats).to(device)
+    scenes = None
     if policy.readout_scenes:
         if scenes_path is None:
             raise ValueError(f"policy {policy.name!r} has readout_scenes: true but no scenes store was given")
         scenes = open_scenes(scenes_path, meta["encoder_checkpoint_sha256"])
-        fingerprint = _fingerprint(policy, seed, {**meta, "scenes_store": str(scenes_path)})
-        fit_readout(model, tokens, labels.readout, train_frames, scenes, stats, policy.cameras, seed)
+    fingerprint = _fingerprint(policy, seed, meta if scenes is None else {**meta, "scenes_store": str(scenes_path)})
+
+    torch.manual_seed(seed)
+    model = build_model(policy, meta, stats).to(device)
+    state_path = work / "state.pt"
+    state = torch.load(state_path, map_location=device, weights_only=False) if state_path.is_file() else None
+    if state is not None and state["fingerprint"] != fingerprint:
+        log.info("discarding resume state of different settings in %s", work)
+        shutil.rmtree(work)
+        state = None
+    if scenes is not None:
+        if state is None:
+            fit_readout(model, tokens, labels.readout, train_frames, scenes, stats, policy.cameras, seed)
+        else:  # the fitted read-out comes back with the resume state: freeze it without fitting it again
+            model.object_readout.requires_grad_(False)
     opt = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=policy.lr,
                             weight_decay=policy.weight_decay)
     history: list[dict] = []
     start = 0
-    state_path = work / "state.pt"
-    if state_path.is_file():
-        state = torch.load(state_path, map_location=device, weights_only=False)
-        if state["fingerprint"] == fingerprint:
-            model.load_state_dict(state["model"])
-            opt.load_state_dict(state["optimizer"])
-            history, start = state["history"], state["epoch"]
-            log.info("resuming %s after epoch %d", policy.name, start)
-        else:
-            log.info("discarding resume state of different settings in %s", work)
-            shutil.rmtree(work)
+    if state is not None:
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        history, start = state["history"], state["epoch"]
+        log.info("resuming %s after epoch %d", policy.name, start)
     work.mkdir(parents=True, exist_ok=True)
 
     loader = ChunkWindowLoader(
