@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -59,9 +60,8 @@ def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None 
             row.update({c: float(at[c][0]) for c in OPEN_LOOP_COLUMNS if c in at.columns and len(at)})
         rows.append(row)
     def rank(r):
-        err = r.get("val_joint_err_rad")
-        return (r["sr"] if r["sr"] == r["sr"] else -1.0, -err if err == err and err is not None else 0.0,
-                r["mean_return"], r["checkpoint"])
+        sr, err = r["sr"], r.get("val_joint_err_rad", float("nan"))
+        return (-1.0 if math.isnan(sr) else sr, 0.0 if math.isnan(err) else -err, r["mean_return"], r["checkpoint"])
 
     rows.sort(key=rank)
     return {"epoch": rows[-1]["checkpoint"], "sweep": rows}
