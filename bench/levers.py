@@ -18,6 +18,7 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
 import polars as pl
 import torch
 import yaml
@@ -65,9 +66,12 @@ def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: in
     seeds = jobs.seeds_for("stability", {**config["evaluation"], "stability_episodes": episodes}, config["seed"], 0)
     t0 = time.perf_counter()
     try:
-        eps, _ = closed_loop.run(loop, seeds, {"exp": label, "checkpoint": policy["epochs"], "run": 0})
+        eps, steps = closed_loop.run(loop, seeds, {"exp": label, "checkpoint": policy["epochs"], "run": 0})
     finally:
         loop.close()
+    # the per-step log, for looking into a lever afterwards (one file per evaluation setting)
+    ev_key = hashlib.sha256(json.dumps(config["evaluation"], sort_keys=True).encode()).hexdigest()[:8]
+    steps.write_parquet(out_dir / f"steps_{episodes}_{ev_key}.parquet")
     last = log.row(-1, named=True)
     row = {
         "lever": label,
@@ -82,9 +86,25 @@ def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: in
         "sr": closed_loop.success_rate(eps),
         "mean_steps": float(eps["steps"].mean()),
         "eval_s": round(time.perf_counter() - t0, 1),
+        **readout_errors(steps),
     }
     print(json.dumps(row), flush=True)
     return row
+
+
+def readout_errors(steps: pl.DataFrame) -> dict:
+    """Median distance (cm) between the policy's object read-out and the true object, over the closed-loop steps
+    before a grasp (after it the object rides in a hand that hides it) and at each episode's first step; empty for
+    policies without a read-out."""
+    est = np.asarray(steps["obj_est"].to_list(), dtype=np.float64)
+    if np.isnan(est).all():
+        return {}
+    err = 100 * np.linalg.norm(est - np.asarray(steps["obj_pos"].to_list()), axis=1)
+    free = ~np.asarray(steps["is_grasped"].to_list(), dtype=bool)
+    first = (steps["step"] == 0).to_numpy()
+    return {"readout_cl_cm": round(float(np.median(err[free])), 2),
+            "readout_cl_p90_cm": round(float(np.percentile(err[free], 90)), 2),
+            "readout_cl_first_cm": round(float(np.median(err[first])), 2)}
 
 
 def main() -> None:

@@ -39,7 +39,8 @@ def scenes_of(config: dict, results: Path, n: int, seed_start: int, out: Path) -
     frames = results / "frames" / f"{STORE}.zarr"
     encoder = registry.build("slots_ssl", config["encoders"], frames, results / "encoders" / "slots_ssl" / "model.pt")
     scenes.render_scenes(encoder, config, "PickCube-v1", "dual", 128, frames, out, n, seed_start, config["seed"],
-                         dtype=config["features"]["dtype"])
+                         dtype=config["features"]["dtype"], near_fraction=config["scenes"]["near_fraction"],
+                         near_radius=config["scenes"]["near_radius"])
     root = zarr.open_group(str(out), mode="r")
     return {"tokens": root["tokens"][...].astype(np.float32), "obj_pos": root["obj_pos"][...]}
 

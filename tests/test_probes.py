@@ -60,3 +60,19 @@ def test_first_frame_probe_scores_only_each_held_out_episodes_first_frame():
     tokens, pos, ep = _store(np.random.default_rng(4))
     clean = probes.probe(tokens, {"obj_pos": pos}, ep, holdout=0.2, seed=0, mlp_epochs=0)
     assert clean["obj_pos"]["first_frames"]["ridge"]["median_cm"] < 0.5
+
+
+def test_fit_mse_ignores_an_output_column_weighted_zero():
+    torch = pytest.importorskip("torch")
+    x = torch.randn(200, 4, generator=torch.Generator().manual_seed(0))
+    y = torch.stack([x[:, 0] * 2, torch.zeros(200)], 1)
+    noisy = y.clone()
+    noisy[:, 1] = 100 * torch.randn(200, generator=torch.Generator().manual_seed(1))
+    nets = []
+    for target, w in ((y, None), (noisy, torch.tensor([1.0, 0.0])), (y, torch.tensor([1.0, 0.0]))):
+        torch.manual_seed(0)
+        net = torch.nn.Linear(4, 2)
+        probes.fit_mse(net, x, target, torch.Generator().manual_seed(0), epochs=5, batch=32, weights=w)
+        nets.append(net.weight.detach().clone())
+    assert torch.equal(nets[1], nets[2])  # the zero-weighted column's targets do not matter
+    assert not torch.equal(nets[0], nets[2])  # and unweighted, they do

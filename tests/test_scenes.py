@@ -50,11 +50,35 @@ def test_scenes_hold_the_reset_scene_drawn_with_a_demo_arm_pose(tmp_path, defaul
     np.testing.assert_array_equal(zarr.open_group(str(again), mode="r")["tokens"][...], root["tokens"][...])
 
 
+def test_near_scenes_put_the_object_beside_a_demo_hand_at_a_random_yaw(tmp_path, default_config):
+    frames = tmp_path / "f.zarr"
+    write_shard(frames, [4, 3], 0)
+    out = tmp_path / "s.zarr"
+    scenes.render_scenes(MeanColour(), default_config, "PickCube-v1", "dual", 32, frames, out, 4, 50_000, seed=0,
+                         near_fraction=1.0, near_radius=0.05)
+    root = zarr.open_group(str(out), mode="r")
+    store = zarr.open_group(str(frames), mode="r")
+    demo_obj = store["obj_pos"][...][~store["is_grasped"][...].astype(bool)]
+    env = envs.make_env("PickCube-v1", default_config, None)
+    try:
+        for i, pos in enumerate(root["obj_pos"][...]):
+            env.reset(seed=50_000 + i)
+            assert np.linalg.norm(pos - envs.task_readouts(env)["obj_pos"]) > 1e-3  # moved off the reset place
+            gaps = np.linalg.norm(demo_obj - pos, axis=1)
+            assert gaps.min() <= 0.05 + 1e-5  # within the radius of a demo frame's object
+            assert abs(pos[2] - demo_obj[gaps.argmin(), 2]) < 1e-5  # at that frame's height
+    finally:
+        env.close()
+    yaws = np.degrees(state_tokens(root["obj_pos"][...], root["obj_quat"][...])[:, 0, 0, 3])
+    assert np.ptp(yaws) > 0  # turned differently
+    assert root.attrs["near_fraction"] == 1.0
+
+
 def test_scene_seeds_must_clear_the_demo_seeds_and_the_evaluation_pool(tmp_path, default_config):
     with pytest.raises(ValueError, match=r"scenes.seed_start: scene seeds 10000\.\.10002 overlap the evaluation pool"):
         scenes.render_scenes(MeanColour(), default_config, "PickCube-v1", "dual", 32, tmp_path / "f.zarr",
                              tmp_path / "s.zarr", 3, 10_000, seed=0)
-    bad = {**default_config, "scenes": {"count": 10, "seed_start": 5}}
+    bad = {**default_config, "scenes": {**default_config["scenes"], "count": 10, "seed_start": 5}}
     with pytest.raises(C.ConfigError, match=r"scenes.seed_start: scene seeds 5\.\.14 overlap the demo seeds"):
         C.validate(bad)
     assert not (tmp_path / "s.zarr").exists()
@@ -82,10 +106,12 @@ def _scenes_store(path, n, C, K, D, seed, sha=None):
     return tok, pos, quat
 
 
-def test_a_readout_fitted_on_scenes_reads_them_and_stays_frozen(tmp_path):
+@pytest.mark.parametrize("standardize, yaw_weight", [("token_dims", 1.0), ("element", 0.2)])
+def test_a_readout_fitted_on_scenes_reads_them_and_stays_frozen(tmp_path, standardize, yaw_weight):
     feats, frames = write_stores(tmp_path, C=2, K=7, D=16)  # demo tokens are noise: only the scenes teach it
     _scenes_store(tmp_path / "s.zarr", 2000, 2, 7, 16, seed=1)
-    policy = policy_settings(object_readout=True, readout_scenes=True, epochs=2, save_every=1)
+    policy = policy_settings(object_readout=True, readout_scenes=True, epochs=2, save_every=1,
+                             readout_standardize=standardize, readout_yaw_weight=yaw_weight)
     train(policy, 0, feats, frames, tmp_path / "run", progress=False, scenes_path=tmp_path / "s.zarr")
     ckpts = [torch.load(tmp_path / "run" / "checkpoints" / f"epoch_000{e}.pt", weights_only=False)["model"]
              for e in (1, 2)]
@@ -96,7 +122,7 @@ def test_a_readout_fitted_on_scenes_reads_them_and_stays_frozen(tmp_path):
     model, stats, _, _ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0002.pt")
     tok, pos, quat = _scenes_store(tmp_path / "new.zarr", 300, 2, 7, 16, seed=2)  # scenes it never saw
     with torch.no_grad():
-        pred = model.object_readout(model._standardize(torch.from_numpy(tok)).flatten(1)).numpy()
+        pred = model.object_pose(torch.from_numpy(tok)).numpy()
     got = pred[:, :3] * stats["readout_std"][:3] + stats["readout_mean"][:3]
     err = np.linalg.norm(got - pos, axis=1)
     mean_err = np.linalg.norm(pos - pos.mean(0), axis=1)
@@ -115,7 +141,8 @@ def test_a_scenes_store_of_other_encoder_weights_is_refused(tmp_path):
 def test_a_killed_run_with_a_scenes_readout_resumes_identically_without_refitting_it(tmp_path, monkeypatch):
     feats, frames = write_stores(tmp_path)
     _scenes_store(tmp_path / "s.zarr", 300, 2, 7, 16, seed=1)
-    policy = policy_settings(object_readout=True, readout_scenes=True, epochs=4, save_every=2)
+    policy = policy_settings(object_readout=True, readout_scenes=True, epochs=4, save_every=2,
+                             readout_standardize="element")
     full = train(policy, 0, feats, frames, tmp_path / "full", progress=False, scenes_path=tmp_path / "s.zarr")
 
     def kill_after_3(epoch):
@@ -130,7 +157,9 @@ def test_a_killed_run_with_a_scenes_readout_resumes_identically_without_refittin
     resumed = train(policy, 0, feats, frames, tmp_path / "resumed", progress=False, scenes_path=tmp_path / "s.zarr")
     assert fits == []  # the read-out came back with the resume state
     assert resumed.drop("seconds").equals(full.drop("seconds"))
-    a = torch.load(tmp_path / "full" / "checkpoints" / "epoch_0004.pt", weights_only=False)["model"]
-    b = torch.load(tmp_path / "resumed" / "checkpoints" / "epoch_0004.pt", weights_only=False)["model"]
-    for k in a:
-        assert torch.equal(a[k], b[k]), k
+    a = torch.load(tmp_path / "full" / "checkpoints" / "epoch_0004.pt", weights_only=False)
+    b = torch.load(tmp_path / "resumed" / "checkpoints" / "epoch_0004.pt", weights_only=False)
+    for k in a["model"]:
+        assert torch.equal(a["model"][k], b["model"][k]), k
+    # the read-out's input statistics, fitted over demos and scenes, come back with the resume state
+    np.testing.assert_array_equal(a["norm"]["readout_in_mean"], b["norm"]["readout_in_mean"])

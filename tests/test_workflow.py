@@ -266,6 +266,10 @@ def test_table5_1_end_to_end_and_identical_on_a_rerun(tiny_run, tmp_path):
     steps = pl.read_parquet(tiny_run / "results" / "runs" / "goal2d" / "stability" / "run_0.steps.parquet")
     assert {"action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos"} <= set(steps.columns)
     assert steps.group_by("seed").len()["len"].max() <= 12  # the episode cap
+    # each step logs where the policy's object read-out put the object; a policy without one logs NaN
+    assert np.isfinite(np.asarray(steps["obj_est"].to_list())).all()
+    control = pl.read_parquet(tiny_run / "results" / "runs" / "state_control" / "stability" / "run_0.steps.parquet")
+    assert np.isnan(np.asarray(control["obj_est"].to_list())).all()
     snakemake(tiny_run, "--configfile", "tiny.yaml", "--report", "report.html", *TABLES)
     html = (tiny_run / "report.html").read_text()
     assert all(name in html for name in ("table5_1.csv", "table5_2.csv", "fig5_1.png", "fig5_2.png", "fig5_3.png"))

@@ -154,12 +154,22 @@ class ClosedLoop:
         return tokens, proprio, self._goal(obs, labels["goal_pos"]), labels
 
     @torch.inference_mode()
+    def object_estimate(self, tokens: torch.Tensor) -> list[float]:
+        """Where the policy's object read-out places the object from this step's tokens (m; NaN without a
+        read-out): logged per step, so the closed-loop perception error can be set beside the probes'."""
+        if self.model.object_readout is None:
+            return [float("nan")] * 3
+        pose = self.model.object_pose(tokens.to(self.device)).cpu().numpy()
+        pos = pose[:3] * self.stats["readout_std"][:3] + self.stats["readout_mean"][:3]
+        return pos.astype(float).tolist()
+
+    @torch.inference_mode()
     def episode(self, seed: int) -> tuple[dict, dict[str, list]]:
         obs, _ = self.env.reset(seed=seed)
         T = self.policy.window
         window: deque = deque(maxlen=T)
         steps: dict[str, list] = {k: [] for k in ("step", "action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos",
-                                                   "reward")}
+                                                   "obj_est", "reward")}
         chunks: deque = deque(maxlen=-(-self.policy.horizon // self.execute))  # (query step, (H, 8) actions)
         success, total = False, 0.0
         for t in range(self.cap):
@@ -184,7 +194,8 @@ class ClosedLoop:
             total += reward
             for k, v in (("step", t), ("action", action.tolist()), ("is_grasped", labels["is_grasped"]),
                          ("tcp_pos", labels["tcp_pos"].tolist()), ("goal_pos", labels["goal_pos"].tolist()),
-                         ("obj_pos", labels["obj_pos"].tolist()), ("reward", reward)):
+                         ("obj_pos", labels["obj_pos"].tolist()), ("obj_est", self.object_estimate(tokens)),
+                         ("reward", reward)):
                 steps[k].append(v)
             if bool(info["success"][0]):
                 success = True

@@ -57,9 +57,10 @@ def mlp(x_train: np.ndarray, y_train: np.ndarray, x_test: np.ndarray, seed: int,
         return net(b).numpy() * y_std + y_mean
 
 
-def fit_mse(net, x, y, generator, epochs: int, batch: int = 256, lr: float = 1e-3) -> float:
-    """Fit ``net`` to (x, y) tensors by mean squared error: AdamW (weight decay 1e-4), cosine decay over all steps,
-    batches shuffled by ``generator``. Shared by the probes and the policy's object read-out. -> the last loss."""
+def fit_mse(net, x, y, generator, epochs: int, batch: int = 256, lr: float = 1e-3, weights=None) -> float:
+    """Fit ``net`` to (x, y) tensors by mean squared error (each output column weighted by ``weights``, default 1):
+    AdamW (weight decay 1e-4), cosine decay over all steps, batches shuffled by ``generator``. Shared by the probes
+    and the policy's object read-out. -> the last loss."""
     import torch
 
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
@@ -67,7 +68,8 @@ def fit_mse(net, x, y, generator, epochs: int, batch: int = 256, lr: float = 1e-
     loss = torch.zeros(())
     for _ in range(epochs):
         for idx in torch.randperm(len(x), generator=generator).split(batch):
-            loss = torch.nn.functional.mse_loss(net(x[idx]), y[idx])
+            err = (net(x[idx]) - y[idx]) ** 2
+            loss = (err * weights).mean() if weights is not None else err.mean()
             opt.zero_grad()
             loss.backward()
             opt.step()

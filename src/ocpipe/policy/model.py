@@ -32,7 +32,8 @@ PROPRIO_DIMS = {"joints7": 7, "qpos9_global": 9, "qpos9_grouped": 9, "joints7_tc
 
 
 class SequencePolicy(nn.Module):
-    def __init__(self, policy: PolicySettings | dict, K: int, D: int, token_stats: tuple | None = None):
+    def __init__(self, policy: PolicySettings | dict, K: int, D: int, token_stats: tuple | None = None,
+                 readout_stats: tuple | None = None):
         super().__init__()
         policy = PolicySettings.of(policy)
         W, heads = policy.width, policy.heads
@@ -49,6 +50,13 @@ class SequencePolicy(nn.Module):
         readout = policy.object_readout
         self.object_readout = mlp([self.cams * K * D, 4 * W, 4 * W, STATE_DIMS]) if readout else None
         self.object_token = nn.Linear(STATE_DIMS, W) if readout else None
+        # readout_standardize 'element': the read-out's own input statistics, one per camera, slot and dimension
+        self.readout_elementwise = readout and policy.readout_standardize == "element"
+        if self.readout_elementwise:
+            n_in = self.cams * K * D
+            mean, std = readout_stats if readout_stats is not None else (torch.zeros(n_in), torch.ones(n_in))
+            self.register_buffer("readout_in_mean", torch.as_tensor(mean, dtype=torch.float32).reshape(n_in))
+            self.register_buffer("readout_in_std", torch.as_tensor(std, dtype=torch.float32).reshape(n_in))
         self.per_step = self.cams * self.visual.tokens_out + 1 + (self.goal is not None) + readout + 1
         self.pos = nn.Parameter(torch.zeros(self.T * self.per_step, W))
         layer = nn.TransformerEncoderLayer(W, heads, 4 * W, dropout=policy.dropout, activation="gelu",
@@ -77,6 +85,16 @@ class SequencePolicy(nn.Module):
     def _standardize(self, tokens):
         return (tokens - self.token_mean) / self.token_std
 
+    def readout_input(self, tokens):
+        """Raw tokens (..., C, K, D) -> the object read-out's standardized input (..., C * K * D)."""
+        if self.readout_elementwise:
+            return (tokens.flatten(-3) - self.readout_in_mean) / self.readout_in_std
+        return self._standardize(tokens).flatten(-3)
+
+    def object_pose(self, tokens):
+        """Raw tokens (..., C, K, D) -> the read-out's standardized object pose (..., 5)."""
+        return self.object_readout(self.readout_input(tokens))
+
     def tokens(self, tokens, proprio, goal, first=None):
         """(B, T, C, K, D), (B, T, P), (B, T, G) [, first frame (B, C, K, D)] -> the flattened sequence
         (B, prefix + T * per_step, W) and the object read-out (B, T, 5) (None without one)."""
@@ -89,7 +107,7 @@ class SequencePolicy(nn.Module):
             parts.append(self.goal(goal)[:, :, None])
         readout = None
         if self.object_readout is not None:
-            readout = self.object_readout(z.flatten(2))
+            readout = self.object_pose(tokens)
             parts.append(self.object_token(readout.detach())[:, :, None])
         parts.append(self.action_token.expand(B, T, 1, -1))
         seq = torch.cat(parts, dim=2).flatten(1, 2) + self.pos

@@ -52,6 +52,8 @@ class PolicySettings:
     first_frame: bool = False  # the episode's first-frame tokens before the T steps
     object_readout: bool = False  # a token per step: the object's pose read off the frozen tokens
     readout_scenes: bool = False  # fit that read-out first on the demo frames plus extra scenes, then freeze it
+    readout_standardize: str = "token_dims"  # token_dims | element: how the read-out's input is standardized
+    readout_yaw_weight: float = 1.0  # weight of the yaw terms in the read-out's loss (position's: 1)
     val_episodes: int = 0  # last demos held out of training for the open-loop error
     name: str | None = None  # the experiment's name (config `experiments`)
 

@@ -78,8 +78,19 @@ def gather_tokens(tokens, frames: np.ndarray, block: int = 1024) -> np.ndarray:
                            for lo in range(0, int(frames[-1]) + 1, block)])
 
 
+def readout_weights(yaw_weight: float, device=None) -> torch.Tensor:
+    """The object read-out's per-output loss weights: position 1, the yaw's sin/cos ``yaw_weight``."""
+    return torch.tensor([1.0, 1.0, 1.0, yaw_weight, yaw_weight], device=device)
+
+
+def element_stats(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean/std of every element of (N, ...) inputs, flattened per sample."""
+    x = x.reshape(len(x), -1).astype(np.float64)
+    return x.mean(0).astype(np.float32), np.maximum(x.std(0), normalization.EPS).astype(np.float32)
+
+
 def fit_readout(model, tokens, readout_targets: np.ndarray, train_frames: np.ndarray, scenes, stats: dict,
-                cameras: list[int], seed: int, epochs: int = 40, batch: int = 256) -> float:
+                cameras: list[int], seed: int, yaw_weight: float = 1.0, epochs: int = 40, batch: int = 256) -> float:
     """Fit the policy's object read-out on the training demos' frames plus the scenes store's scenes (the same
     pose targets, standardized as for the demos), then freeze it: the policy trains around a fixed estimate of
     where the object is, fitted on far more placements than the demos show. -> the last batch's loss."""
@@ -89,23 +100,32 @@ def fit_readout(model, tokens, readout_targets: np.ndarray, train_frames: np.nda
     y = np.concatenate([readout_targets[train_frames], (pose - stats["readout_mean"]) / stats["readout_std"]])
     x = np.concatenate([demo, scenes["tokens"][...][:, cams].astype(np.float32)])
     device = model.token_mean.device
+    if model.readout_elementwise:  # the input statistics of what the read-out is fitted on: demos and scenes
+        mean, std = element_stats(x)
+        stats["readout_in_mean"], stats["readout_in_std"] = mean, std
+        model.readout_in_mean.copy_(torch.from_numpy(mean))
+        model.readout_in_std.copy_(torch.from_numpy(std))
     with torch.no_grad():
-        xz = model._standardize(torch.from_numpy(x).to(device)).flatten(1)
+        xz = model.readout_input(torch.from_numpy(x).to(device))
     yt = torch.from_numpy(y.astype(np.float32)).to(device)
     readout = model.object_readout
-    loss = fit_mse(readout, xz, yt, torch.Generator().manual_seed(seed), epochs, batch)
+    loss = fit_mse(readout, xz, yt, torch.Generator().manual_seed(seed), epochs, batch,
+                   weights=readout_weights(yaw_weight, device))
     readout.requires_grad_(False)
     log.info("object read-out fitted on %d demo frames and %d scenes, then frozen (loss %.4f)", len(demo),
              len(x) - len(demo), loss)
     return loss
 
 
-def token_stats(tokens, frames: np.ndarray, max_frames: int = 20000) -> tuple[np.ndarray, np.ndarray]:
+def _spread(frames: np.ndarray, max_frames: int = 20000) -> np.ndarray:
+    """At most ``max_frames`` evenly spaced of ``frames``."""
+    return frames[np.unique(np.linspace(0, len(frames) - 1, min(len(frames), max_frames)).round().astype(int))]
+
+
+def token_stats(tokens, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-dimension mean/std of the visual tokens (pooled over cameras and slots) on evenly spaced training frames."""
-    pick = frames[np.unique(np.linspace(0, len(frames) - 1, min(len(frames), max_frames)).round().astype(int))]
-    x = gather_tokens(tokens, pick).astype(np.float64)
-    x = x.reshape(-1, x.shape[-1])
-    return x.mean(0).astype(np.float32), np.maximum(x.std(0), normalization.EPS).astype(np.float32)
+    x = gather_tokens(tokens, _spread(frames))
+    return element_stats(x.reshape(-1, x.shape[-1]))
 
 
 def load_data(policy: PolicySettings | dict, features_path, frames_path):
@@ -151,6 +171,9 @@ def load_data(policy: PolicySettings | dict, features_path, frames_path):
         stats["readout_mean"] = pose[train_frames].mean(0)
         stats["readout_std"] = np.maximum(pose[train_frames].std(0), 1e-6)
         extra["readout"] = ((pose - stats["readout_mean"]) / stats["readout_std"]).astype(np.float32)
+        if policy.readout_standardize == "element":
+            stats["readout_in_mean"], stats["readout_in_std"] = element_stats(
+                gather_tokens(tokens, _spread(train_frames))[:, list(policy.cameras)])
     if policy.first_frame:
         starts = np.asarray(offsets[:-1], dtype=np.int64)
         extra["first"] = (starts, gather_tokens(tokens, starts).astype(np.float32))
@@ -174,7 +197,8 @@ def load_data(policy: PolicySettings | dict, features_path, frames_path):
 
 def build_model(policy: PolicySettings | dict, meta: dict, stats: dict) -> SequencePolicy:
     token = (stats["token_mean"], stats["token_std"]) if "token_mean" in stats else None
-    return SequencePolicy(policy, meta["K"], meta["D"], token)
+    readout = (stats["readout_in_mean"], stats["readout_in_std"]) if "readout_in_mean" in stats else None
+    return SequencePolicy(policy, meta["K"], meta["D"], token, readout)
 
 
 def _fingerprint(policy: PolicySettings, seed: int, meta: dict) -> str:
@@ -237,7 +261,8 @@ def train(
         state = None
     if scenes is not None:
         if state is None:
-            fit_readout(model, tokens, labels.readout, train_frames, scenes, stats, policy.cameras, seed)
+            fit_readout(model, tokens, labels.readout, train_frames, scenes, stats, policy.cameras, seed,
+                        policy.readout_yaw_weight)
         else:  # the fitted read-out comes back with the resume state: freeze it without fitting it again
             model.object_readout.requires_grad_(False)
     opt = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=policy.lr,
@@ -248,6 +273,7 @@ def train(
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         history, start = state["history"], state["epoch"]
+        stats.update(state["norm"])  # what training fitted into them (the scenes read-out's input statistics)
         log.info("resuming %s after epoch %d", policy.name, start)
     work.mkdir(parents=True, exist_ok=True)
 
@@ -269,6 +295,7 @@ def train(
         else None
     )
     aux_weight = policy.aux_object_weight
+    readout_w = readout_weights(policy.readout_yaw_weight, device)
     proprio_noise = policy.proprio_noise
     keep = set(saved_epochs(policy.as_dict()))
     for epoch in range(start, policy.epochs):
@@ -300,7 +327,7 @@ def train(
                 terms["loss"] = terms["loss"] + aux_weight * terms["loss_aux"]
             terms["loss_readout"] = torch.zeros(())
             if aux["readout"] is not None:  # its own loss: the policy's tokens see the read-out without gradient
-                terms["loss_readout"] = ((aux["readout"] - batch["readout"]) ** 2).mean()
+                terms["loss_readout"] = (readout_w * (aux["readout"] - batch["readout"]) ** 2).mean()
                 terms["loss"] = terms["loss"] + terms["loss_readout"]
             opt.zero_grad(set_to_none=True)
             terms["loss"].backward()

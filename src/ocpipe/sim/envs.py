@@ -137,13 +137,19 @@ def make_env(task: str, config: dict, camera_set: str | None = None, resolution:
     )
 
 
+def task_object(env):
+    """The actor the task manipulates (PickCube's cube, StackCube's cubeA)."""
+    u = env.unwrapped
+    return u.cube if isinstance(u, _env_class("PickCube-v1")) else u.cubeA
+
+
 def task_readouts(env) -> dict[str, np.ndarray]:
     """Per-step labels read from the simulator (not from obs, which differ by task and obs mode)."""
     u = env.unwrapped
+    obj = task_object(env)
     if isinstance(u, _env_class("PickCube-v1")):
-        obj, goal = u.cube, u.goal_site.pose.p
+        goal = u.goal_site.pose.p
     else:
-        obj = u.cubeA
         goal = u.cubeB.pose.p.clone()
         goal[..., 2] += 2 * u.cube_half_size[2]  # top centre of cubeB: where cubeA's centre must go
     return {
