@@ -64,7 +64,7 @@ def worker(mode: str, setting: dict, checkpoint: str, steps: int) -> dict:
         hold[:, 7] = 1.0
 
         def step():
-            tokens, proprio, goal, labels = loop._observe(obs)
+            tokens, proprio, goal, labels = loop._observe(obs, first=False)
             seq = [
                 torch.as_tensor(x)[None, None].repeat(1, loop.policy.window, *([1] * torch.as_tensor(x).dim()))
                 for x in (tokens, proprio, goal)

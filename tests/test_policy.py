@@ -183,6 +183,21 @@ def test_object_readout_learns_the_pose_and_the_action_loss_cannot_reshape_it(tm
     assert log["loss_readout"][-1] < log["loss_readout"][0]
 
 
+def test_readout_noise_blurs_only_the_position_the_policy_sees(tmp_path):
+    features, frames = write_stores(tmp_path)
+    policy = policy_settings(object_readout=True)
+    tokens, labels, *_ = load_data(policy, features, frames)
+    batch = next(ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], 8, policy["cameras"], 0)
+                 .epoch(0))
+    model = SequencePolicy(policy, 7, 16).eval()
+    args = (batch["tokens"], batch["proprio"], batch["goal"])
+    clean, clean_aux = model(*args, aux=True)
+    assert torch.equal(clean, model(*args, readout_noise=torch.zeros(3)))
+    noisy, noisy_aux = model(*args, aux=True, readout_noise=torch.full((3,), 0.5))
+    assert not torch.allclose(clean, noisy)  # the policy saw another position
+    assert torch.equal(clean_aux["readout"], noisy_aux["readout"])  # the read-out itself (and its loss) did not move
+
+
 def test_windows_pad_at_episode_edges():
     labels = Labels.from_offsets([0, 4, 10], np.zeros((10, 7)), np.zeros((10, 0)), np.zeros((10, 8)))
     frames = np.array([0, 1, 4, 9])

@@ -313,6 +313,40 @@ def test_an_episode_is_the_same_in_a_fresh_env_and_after_other_episodes(tiny_run
     assert both_steps.filter(pl.col("seed") == seeds[1]).equals(alone_steps)
 
 
+def test_no_first_frame_reads_a_grasp_left_over_from_the_previous_episode(tiny_run):
+    """Contacts are computed by physics steps: right after a reset they are the previous episode's."""
+    import h5py
+    import polars as pl
+    import torch
+
+    from ocpipe.config import validate as cfgmod
+    from ocpipe.evaluation import closed_loop
+    from ocpipe.frames import replay
+    from ocpipe.sim import envs
+
+    res = tiny_run / "results"
+    root = frames_store.open_store(res / "frames" / "PickCube-v1_dual_64.zarr")
+    grasped, offsets = root["is_grasped"][...], root.attrs["episode_offsets"]
+    assert grasped[np.asarray(offsets[1:]) - 1].any()  # demos end holding the cube ...
+    assert not grasped[np.asarray(offsets[:-1])].any()  # ... and no replayed episode starts so
+    config = cfgmod.load(REPO / "config" / "config.yaml", tiny_run / "tiny.yaml")
+    loop = closed_loop.ClosedLoop(res / "runs" / "goal2d" / "checkpoints" / "epoch_0002.pt", config,
+                                  res / "frames" / "PickCube-v1_dual_64.zarr",
+                                  res / "encoders" / "slots_ssl" / "model.pt")
+    try:
+        episode = json.loads((res / "demos" / "PickCube-v1.json").read_text())["episodes"][0]
+        with h5py.File(res / "demos" / "PickCube-v1.h5", "r") as h5:
+            actions, states = replay.read_episode(h5, episode)
+        u = loop.env.unwrapped
+        u.set_state_dict(replay._index_state(states, len(actions) - 1))  # the demo's last state: the cube in hand
+        u._step_action(torch.as_tensor(actions[-1][None], dtype=torch.float32))
+        assert envs.task_readouts(loop.env)["is_grasped"]
+        _, steps = closed_loop.run(loop, [10_003], {"exp": "goal2d", "checkpoint": 2, "run": 0}, progress=False)
+    finally:
+        loop.close()
+    assert steps.filter(pl.col("step") == 0)["is_grasped"].to_list() == [False]
+
+
 def test_tiny_run_tables_match_the_committed_ones(tiny_run):
     """The tiny run's tables, byte for byte, against tests/expected/tiny/ (made by this config before the code was
     moved into stage packages): a refactor that changes what any stage computes changes a table. When a change is

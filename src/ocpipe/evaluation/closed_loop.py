@@ -146,8 +146,8 @@ class ClosedLoop:
         return tokens[0][self.policy.cameras]
 
     @torch.inference_mode()
-    def _observe(self, obs) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:
-        labels = envs.task_readouts(self.env)
+    def _observe(self, obs, first: bool) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:
+        labels = envs.task_readouts(self.env, after_reset=first)
         tokens = self._tokens(obs, labels)
         x = normalization.proprio_input(labels["qpos"], labels["tcp_pos"], self.policy.proprio)
         proprio = normalization.proprio(x[None], self.stats)[0]
@@ -173,7 +173,7 @@ class ClosedLoop:
         chunks: deque = deque(maxlen=-(-self.policy.horizon // self.execute))  # (query step, (H, 8) actions)
         success, total = False, 0.0
         for t in range(self.cap):
-            tokens, proprio, goal, labels = self._observe(obs)
+            tokens, proprio, goal, labels = self._observe(obs, first=t == 0)
             if t == 0:
                 first = tokens[None].to(self.device)  # the episode's first frame, for first_frame policies
             window.append((tokens, proprio, goal))

@@ -108,7 +108,7 @@ class Replayer:
             rows["seg"].append(np.stack([sensors[uid]["segmentation"][0, ..., 0].cpu().numpy() for uid in self.uids]))
             rows["cam_intrinsic"].append(np.stack([params[uid]["intrinsic_cv"][0].cpu().numpy() for uid in self.uids]))
             rows["cam_extrinsic"].append(np.stack([params[uid]["extrinsic_cv"][0].cpu().numpy() for uid in self.uids]))
-            for k, v in envs.task_readouts(self.env).items():
+            for k, v in envs.task_readouts(self.env, after_reset=t == 0).items():
                 rows[k].append(v)
             # step the physics without rendering an observation we would throw away
             u._step_action(torch.as_tensor(action[None], dtype=torch.float32))

@@ -95,9 +95,10 @@ class SequencePolicy(nn.Module):
         """Raw tokens (..., C, K, D) -> the read-out's standardized object pose (..., 5)."""
         return self.object_readout(self.readout_input(tokens))
 
-    def tokens(self, tokens, proprio, goal, first=None):
+    def tokens(self, tokens, proprio, goal, first=None, readout_noise=None):
         """(B, T, C, K, D), (B, T, P), (B, T, G) [, first frame (B, C, K, D)] -> the flattened sequence
-        (B, prefix + T * per_step, W) and the object read-out (B, T, 5) (None without one)."""
+        (B, prefix + T * per_step, W) and the object read-out (B, T, 5) (None without one). ``readout_noise``
+        (3,): std of Gaussian noise added to the read-out's (standardized) position before the policy sees it."""
         B, T = tokens.shape[:2]
         if T != self.T:
             raise ValueError(f"policy expects windows of T={self.T} steps, got {T}")
@@ -108,7 +109,10 @@ class SequencePolicy(nn.Module):
         readout = None
         if self.object_readout is not None:
             readout = self.object_pose(tokens)
-            parts.append(self.object_token(readout.detach())[:, :, None])
+            seen = readout.detach()
+            if readout_noise is not None:
+                seen = torch.cat([seen[..., :3] + readout_noise * torch.randn_like(seen[..., :3]), seen[..., 3:]], -1)
+            parts.append(self.object_token(seen)[:, :, None])
         parts.append(self.action_token.expand(B, T, 1, -1))
         seq = torch.cat(parts, dim=2).flatten(1, 2) + self.pos
         if not self.first_frame:
@@ -118,13 +122,14 @@ class SequencePolicy(nn.Module):
         prefix = self._visual(self._standardize(first[:, None])).flatten(1, 3) + self.first_pos
         return torch.cat([prefix, seq], dim=1), readout
 
-    def forward(self, tokens, proprio, goal, first=None, all_steps: bool = False, aux: bool = False):
+    def forward(self, tokens, proprio, goal, first=None, all_steps: bool = False, aux: bool = False,
+                readout_noise=None):
         """-> (B, H, 8) predictions for the current step, or (B, T, H, 8) for every step's action token; with
         ``aux`` also a dict of the auxiliary predictions: 'object_pos' (B, 3), the auxiliary head's object position
         at the current step, and 'readout' (B, T, 5), the object read-out of every step (each None when the
         policy has no such head). ``first``: the episode's first-frame tokens (B, C, K, D), for first_frame
-        policies only."""
-        seq, readout = self.tokens(tokens, proprio, goal, first)
+        policies only. ``readout_noise``: see tokens (training only)."""
+        seq, readout = self.tokens(tokens, proprio, goal, first, readout_noise)
         L = seq.shape[1]
         mask = nn.Transformer.generate_square_subsequent_mask(L, device=seq.device, dtype=seq.dtype)
         h = self.norm(self.decoder(seq, mask=mask, is_causal=True))

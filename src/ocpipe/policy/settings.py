@@ -54,6 +54,7 @@ class PolicySettings:
     readout_scenes: bool = False  # fit that read-out first on the demo frames plus extra scenes, then freeze it
     readout_standardize: str = "token_dims"  # token_dims | element: how the read-out's input is standardized
     readout_yaw_weight: float = 1.0  # weight of the yaw terms in the read-out's loss (position's: 1)
+    readout_noise: float = 0.0  # std (m) of noise on the read-out's position as the policy sees it in training
     val_episodes: int = 0  # last demos held out of training for the open-loop error
     name: str | None = None  # the experiment's name (config `experiments`)
 

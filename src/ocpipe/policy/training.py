@@ -296,6 +296,10 @@ def train(
     )
     aux_weight = policy.aux_object_weight
     readout_w = readout_weights(policy.readout_yaw_weight, device)
+    readout_noise = None
+    if policy.object_readout and policy.readout_noise > 0:  # metres -> the read-out's standardized units
+        readout_noise = torch.as_tensor(policy.readout_noise / stats["readout_std"][:3], dtype=torch.float32,
+                                        device=device)
     proprio_noise = policy.proprio_noise
     keep = set(saved_epochs(policy.as_dict()))
     for epoch in range(start, policy.epochs):
@@ -318,7 +322,8 @@ def train(
             batch = {k: v.to(device) for k, v in batch.items()}
             if proprio_noise > 0:  # blur the joint history so the policy cannot act on it alone (copycat)
                 batch["proprio"] = batch["proprio"] + proprio_noise * torch.randn_like(batch["proprio"])
-            pred, aux = model(batch["tokens"], batch["proprio"], batch["goal"], batch.get("first"), aux=True)
+            pred, aux = model(batch["tokens"], batch["proprio"], batch["goal"], batch.get("first"), aux=True,
+                              readout_noise=readout_noise)
             w = loss_weights(policy.loss_weighting, batch["progress"], epoch, policy.time_weight_warmup_epochs)
             terms = loss_terms(pred, batch["action"], w, policy.gripper == "bce")
             terms["loss_aux"] = torch.zeros(())

@@ -143,8 +143,12 @@ def task_object(env):
     return u.cube if isinstance(u, _env_class("PickCube-v1")) else u.cubeA
 
 
-def task_readouts(env) -> dict[str, np.ndarray]:
-    """Per-step labels read from the simulator (not from obs, which differ by task and obs mode)."""
+def task_readouts(env, after_reset: bool = False) -> dict[str, np.ndarray]:
+    """Per-step labels read from the simulator (not from obs, which differ by task and obs mode).
+
+    ``after_reset``: no physics step has run since the episode's reset. The grasp test reads contacts, which only a
+    physics step computes: until then they are the previous episode's (a demo that ended holding the cube made
+    the next episode's first frame 'grasped'). Both tasks start with the gripper open, away from the cubes."""
     u = env.unwrapped
     obj = task_object(env)
     if isinstance(u, _env_class("PickCube-v1")):
@@ -158,5 +162,5 @@ def task_readouts(env) -> dict[str, np.ndarray]:
         "obj_pos": obj.pose.p[0].cpu().numpy(),
         "obj_quat": obj.pose.q[0].cpu().numpy(),  # wxyz
         "goal_pos": goal[0].cpu().numpy(),
-        "is_grasped": bool(u.agent.is_grasping(obj)[0].item()),
+        "is_grasped": False if after_reset else bool(u.agent.is_grasping(obj)[0].item()),
     }
