@@ -301,3 +301,21 @@ def test_policy_settings_name_an_unknown_or_missing_key_and_fill_later_levers():
     old = {k: v for k, v in base.items() if k not in ("first_frame", "object_readout", "lr_schedule")}
     s = PolicySettings.of(old)  # a checkpoint written before these keys existed: trained without them
     assert (s.first_frame, s.object_readout, s.lr_schedule) == (False, False, "constant")
+
+
+def test_readout_tcp_relative_gives_the_token_the_estimate_minus_the_tcp(tmp_path):
+    features, frames = write_stores(tmp_path)
+    policy = policy_settings(object_readout=True, readout_tcp_relative=True, epochs=1, save_every=1, val_episodes=1)
+    tokens, labels, stats, *_ = load_data(policy, features, frames)
+    assert labels.tcp.shape == (len(labels.proprio), 3)
+    batch = next(ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], 8, policy["cameras"], 0)
+                 .epoch(0))
+    assert batch["tcp"].shape == (8, policy["window"], 3)
+    model = SequencePolicy(policy, 7, 16, readout_pose_stats=(stats["readout_mean"], stats["readout_std"])).eval()
+    args = (batch["tokens"], batch["proprio"], batch["goal"])
+    out = model(*args, tcp=batch["tcp"])
+    assert not torch.allclose(out, model(*args, tcp=batch["tcp"] + 0.05))  # the offset reaches the policy
+    with pytest.raises(ValueError, match="readout_tcp_relative"):
+        model(*args)
+    log = train(policy, 0, features, frames, tmp_path / "run", progress=False)  # trains and scores open-loop
+    assert np.isfinite(log["val_joint_err_rad"].to_numpy()).all()

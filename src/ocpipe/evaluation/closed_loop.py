@@ -176,12 +176,12 @@ class ClosedLoop:
             tokens, proprio, goal, labels = self._observe(obs, first=t == 0)
             if t == 0:
                 first = tokens[None].to(self.device)  # the episode's first frame, for first_frame policies
-            window.append((tokens, proprio, goal))
+            window.append((tokens, proprio, goal, labels["tcp_pos"].astype(np.float32)))
             while len(window) < T:
                 window.appendleft(window[0])
             if t % self.execute == 0:  # execute <= H: a chunk always covers the steps until the next query
-                batch = [torch.stack([torch.as_tensor(w[i]) for w in window])[None].to(self.device) for i in range(3)]
-                pred = self.model(*batch, first)[0].cpu().numpy()
+                batch = [torch.stack([torch.as_tensor(w[i]) for w in window])[None].to(self.device) for i in range(4)]
+                pred = self.model(*batch[:3], first, tcp=batch[3])[0].cpu().numpy()
                 qpos = labels["qpos"][:7] if self.residual else None
                 chunks.append((t, normalization.action_from_model(pred, self.stats, qpos=qpos)))
             if self.ensemble:

@@ -33,7 +33,7 @@ PROPRIO_DIMS = {"joints7": 7, "qpos9_global": 9, "qpos9_grouped": 9, "joints7_tc
 
 class SequencePolicy(nn.Module):
     def __init__(self, policy: PolicySettings | dict, K: int, D: int, token_stats: tuple | None = None,
-                 readout_stats: tuple | None = None):
+                 readout_stats: tuple | None = None, readout_pose_stats: tuple | None = None):
         super().__init__()
         policy = PolicySettings.of(policy)
         W, heads = policy.width, policy.heads
@@ -49,7 +49,13 @@ class SequencePolicy(nn.Module):
         self.action_token = nn.Parameter(torch.zeros(W))
         readout = policy.object_readout
         self.object_readout = mlp([self.cams * K * D, 4 * W, 4 * W, STATE_DIMS]) if readout else None
-        self.object_token = nn.Linear(STATE_DIMS, W) if readout else None
+        # readout_tcp_relative: the token also gets the read-out's position minus the TCP, in decimetres
+        self.readout_tcp = readout and policy.readout_tcp_relative
+        self.object_token = nn.Linear(STATE_DIMS + 3 * self.readout_tcp, W) if readout else None
+        if self.readout_tcp:  # to turn the standardized read-out back into metres
+            mean, std = readout_pose_stats if readout_pose_stats is not None else (torch.zeros(5), torch.ones(5))
+            self.register_buffer("readout_out_mean", torch.as_tensor(mean, dtype=torch.float32).reshape(STATE_DIMS))
+            self.register_buffer("readout_out_std", torch.as_tensor(std, dtype=torch.float32).reshape(STATE_DIMS))
         # readout_standardize 'element': the read-out's own input statistics, one per camera, slot and dimension
         self.readout_elementwise = readout and policy.readout_standardize == "element"
         if self.readout_elementwise:
@@ -95,10 +101,11 @@ class SequencePolicy(nn.Module):
         """Raw tokens (..., C, K, D) -> the read-out's standardized object pose (..., 5)."""
         return self.object_readout(self.readout_input(tokens))
 
-    def tokens(self, tokens, proprio, goal, first=None, readout_noise=None):
+    def tokens(self, tokens, proprio, goal, first=None, readout_noise=None, tcp=None):
         """(B, T, C, K, D), (B, T, P), (B, T, G) [, first frame (B, C, K, D)] -> the flattened sequence
         (B, prefix + T * per_step, W) and the object read-out (B, T, 5) (None without one). ``readout_noise``
-        (3,): std of Gaussian noise added to the read-out's (standardized) position before the policy sees it."""
+        (3,): std of Gaussian noise added to the read-out's (standardized) position before the policy sees it.
+        ``tcp`` (B, T, 3): the TCP's position (m), for readout_tcp_relative policies."""
         B, T = tokens.shape[:2]
         if T != self.T:
             raise ValueError(f"policy expects windows of T={self.T} steps, got {T}")
@@ -112,6 +119,11 @@ class SequencePolicy(nn.Module):
             seen = readout.detach()
             if readout_noise is not None:
                 seen = torch.cat([seen[..., :3] + readout_noise * torch.randn_like(seen[..., :3]), seen[..., 3:]], -1)
+            if self.readout_tcp:
+                if tcp is None:
+                    raise ValueError("this policy was trained with readout_tcp_relative: true and needs the TCP")
+                pos = seen[..., :3] * self.readout_out_std[:3] + self.readout_out_mean[:3]
+                seen = torch.cat([seen, 10.0 * (pos - tcp)], -1)
             parts.append(self.object_token(seen)[:, :, None])
         parts.append(self.action_token.expand(B, T, 1, -1))
         seq = torch.cat(parts, dim=2).flatten(1, 2) + self.pos
@@ -123,13 +135,13 @@ class SequencePolicy(nn.Module):
         return torch.cat([prefix, seq], dim=1), readout
 
     def forward(self, tokens, proprio, goal, first=None, all_steps: bool = False, aux: bool = False,
-                readout_noise=None):
+                readout_noise=None, tcp=None):
         """-> (B, H, 8) predictions for the current step, or (B, T, H, 8) for every step's action token; with
         ``aux`` also a dict of the auxiliary predictions: 'object_pos' (B, 3), the auxiliary head's object position
         at the current step, and 'readout' (B, T, 5), the object read-out of every step (each None when the
         policy has no such head). ``first``: the episode's first-frame tokens (B, C, K, D), for first_frame
-        policies only. ``readout_noise``: see tokens (training only)."""
-        seq, readout = self.tokens(tokens, proprio, goal, first, readout_noise)
+        policies only. ``readout_noise``, ``tcp``: see tokens."""
+        seq, readout = self.tokens(tokens, proprio, goal, first, readout_noise, tcp)
         L = seq.shape[1]
         mask = nn.Transformer.generate_square_subsequent_mask(L, device=seq.device, dtype=seq.dtype)
         h = self.norm(self.decoder(seq, mask=mask, is_causal=True))

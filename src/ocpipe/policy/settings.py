@@ -55,6 +55,7 @@ class PolicySettings:
     readout_standardize: str = "token_dims"  # token_dims | element: how the read-out's input is standardized
     readout_yaw_weight: float = 1.0  # weight of the yaw terms in the read-out's loss (position's: 1)
     readout_noise: float = 0.0  # std (m) of noise on the read-out's position as the policy sees it in training
+    readout_tcp_relative: bool = False  # the read-out's token also holds its object position minus the TCP
     val_episodes: int = 0  # last demos held out of training for the open-loop error
     name: str | None = None  # the experiment's name (config `experiments`)
 

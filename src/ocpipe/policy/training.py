@@ -134,7 +134,7 @@ def load_data(policy: PolicySettings | dict, features_path, frames_path):
     goal = (goal_source(policy),) if policy.goal != "none" else ()
     reads_obj = policy.aux_object_weight > 0 or policy.object_readout
     aux = ("obj_pos",) * reads_obj + ("obj_quat",) * policy.object_readout
-    tcp = ("tcp_pos",) if policy.proprio == "joints7_tcp" else ()
+    tcp = ("tcp_pos",) if policy.proprio == "joints7_tcp" or policy.readout_tcp_relative else ()
     feats, frames = open_features(features_path), open_store(frames_path, need=("qpos", "action", *goal, *aux, *tcp))
     check_provenance(feats, features_path, frames, frames_path)
     tokens = PolicyTokens(feats, policy.slot_geometry, str(features_path))
@@ -147,8 +147,8 @@ def load_data(policy: PolicySettings | dict, features_path, frames_path):
     offsets = frames.attrs["episode_offsets"]
     train_frames, val_frames = split_episodes(offsets, policy.val_episodes, str(frames_path))
     qpos, action = frames["qpos"][:].astype(np.float32), frames["action"][:].astype(np.float32)
-    proprio_x = normalization.proprio_input(qpos, frames["tcp_pos"][:].astype(np.float32) if tcp else None,
-                                            policy.proprio)
+    tcp_pos = frames["tcp_pos"][:].astype(np.float32) if tcp else None
+    proprio_x = normalization.proprio_input(qpos, tcp_pos, policy.proprio)
     stats = normalization.compute(proprio_x[train_frames], action[train_frames], policy.proprio)
     extra = {}
     if policy.joint_targets == "residual":
@@ -171,6 +171,8 @@ def load_data(policy: PolicySettings | dict, features_path, frames_path):
         stats["readout_mean"] = pose[train_frames].mean(0)
         stats["readout_std"] = np.maximum(pose[train_frames].std(0), 1e-6)
         extra["readout"] = ((pose - stats["readout_mean"]) / stats["readout_std"]).astype(np.float32)
+        if policy.readout_tcp_relative:
+            extra["tcp"] = tcp_pos
         if policy.readout_standardize == "element":
             stats["readout_in_mean"], stats["readout_in_std"] = element_stats(
                 gather_tokens(tokens, _spread(train_frames))[:, list(policy.cameras)])
@@ -198,7 +200,8 @@ def load_data(policy: PolicySettings | dict, features_path, frames_path):
 def build_model(policy: PolicySettings | dict, meta: dict, stats: dict) -> SequencePolicy:
     token = (stats["token_mean"], stats["token_std"]) if "token_mean" in stats else None
     readout = (stats["readout_in_mean"], stats["readout_in_std"]) if "readout_in_mean" in stats else None
-    return SequencePolicy(policy, meta["K"], meta["D"], token, readout)
+    pose = (stats["readout_mean"], stats["readout_std"]) if "readout_mean" in stats else None
+    return SequencePolicy(policy, meta["K"], meta["D"], token, readout, pose)
 
 
 def _fingerprint(policy: PolicySettings, seed: int, meta: dict) -> str:
@@ -323,7 +326,7 @@ def train(
             if proprio_noise > 0:  # blur the joint history so the policy cannot act on it alone (copycat)
                 batch["proprio"] = batch["proprio"] + proprio_noise * torch.randn_like(batch["proprio"])
             pred, aux = model(batch["tokens"], batch["proprio"], batch["goal"], batch.get("first"), aux=True,
-                              readout_noise=readout_noise)
+                              readout_noise=readout_noise, tcp=batch.get("tcp"))
             w = loss_weights(policy.loss_weighting, batch["progress"], epoch, policy.time_weight_warmup_epochs)
             terms = loss_terms(pred, batch["action"], w, policy.gripper == "bce")
             terms["loss_aux"] = torch.zeros(())
@@ -392,7 +395,7 @@ def openloop_error(model, loader: ChunkWindowLoader, labels: Labels, stats: dict
     for batch in loader.epoch(0):
         frames = batch["frame"].numpy()
         inputs = [batch[k].to(device) if k in batch else None for k in ("tokens", "proprio", "goal", "first")]
-        pred = model(*inputs).cpu().numpy()
+        pred = model(*inputs, tcp=batch["tcp"].to(device) if "tcp" in batch else None).cpu().numpy()
         qpos = labels.residual[0][frames][:, :7] if labels.residual is not None else None
         got = normalization.action_from_model(pred, stats, qpos=qpos)
         want = labels.action[action_frames(frames, labels, policy.horizon)]

@@ -29,6 +29,7 @@ class Labels:
     residual: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     aux: np.ndarray | None = None  # (N, A) auxiliary per-frame targets (normalized object position), training only
     readout: np.ndarray | None = None  # (N, 5) normalized object pose tokens, the object read-out's targets
+    tcp: np.ndarray | None = None  # (N, 3) the TCP's position (m), for readout_tcp_relative policies
     # first-frame context: (episode start frames (E,), their visual tokens (E, C, K, D)), for `first_frame` policies
     first: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -85,6 +86,8 @@ def make_batch(
         batch["aux"] = torch.from_numpy(labels.aux[frames])
     if labels.readout is not None:
         batch["readout"] = torch.from_numpy(labels.readout[win])
+    if labels.tcp is not None:
+        batch["tcp"] = torch.from_numpy(labels.tcp[win])
     if labels.first is not None:
         starts, first = labels.first
         episode = np.searchsorted(starts, labels.start[frames])
