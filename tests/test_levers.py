@@ -120,7 +120,7 @@ def test_openloop_error_is_zero_for_a_policy_that_returns_the_expert_chunk(tmp_p
         class Oracle(torch.nn.Module):
             current = None
 
-            def forward(self, tokens, proprio, goal, first=None, truth=truth):
+            def forward(self, tokens, proprio, goal, first=None, tcp=None, truth=truth):
                 return torch.stack([truth[f] for f in Oracle.current])
 
         def patched_epoch(epoch, _orig=loader.epoch):
