@@ -91,6 +91,14 @@ def test_readout_scenes_needs_the_object_readout(default_config):
         C.validate(cfg)
 
 
+@pytest.mark.parametrize("key, value", [("readout_tcp_relative", True), ("readout_noise", 0.01)])
+def test_readout_token_options_need_the_object_readout(default_config, key, value):
+    x = {"object_readout": False, "readout_scenes": False, key: value}
+    cfg = {**default_config, "experiments": {**default_config["experiments"], "x": x}}
+    with pytest.raises(C.ConfigError, match=rf"experiments.x.{key}: .* needs object_readout: true"):
+        C.validate(cfg)
+
+
 def _scenes_store(path, n, C, K, D, seed, sha=None):
     """Tokens whose first three dims of camera 0, slot 0 hold the object's position (x 10); the rest is noise."""
     rng = np.random.default_rng(seed)

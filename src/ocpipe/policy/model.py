@@ -16,7 +16,11 @@ stays in view of every query (the T-step window alone forgets it); `object_reado
 from an MLP's read-out of the object's pose (position, sin/cos of 4x yaw: what the privileged-state control sees)
 from that step's frozen tokens, trained on the frames store's poses and passed on without gradient, so the
 policy gets an explicit object estimate it cannot reshape to fit the actions; with `readout_scenes` that read-out
-is fitted before the policy, on the demos' frames plus many extra scenes, and frozen (training.fit_readout)."""
+is fitted before the policy, on the demos' frames plus many extra scenes, and frozen (training.fit_readout). The
+read-out standardizes its input per token dimension like the visual tokens, or (`readout_standardize: element`)
+per camera, slot and dimension with its own statistics: slots keep their own offsets, which the pooled statistics
+leave in and which cost the read-out half its precision. `readout_tcp_relative` adds the read-out's position
+minus the TCP to its token (what the control's token holds with the true position)."""
 
 from __future__ import annotations
 
