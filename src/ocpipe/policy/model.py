@@ -57,16 +57,11 @@ class SequencePolicy(nn.Module):
         self.readout_tcp = readout and policy.readout_tcp_relative
         self.object_token = nn.Linear(STATE_DIMS + 3 * self.readout_tcp, W) if readout else None
         if self.readout_tcp:  # to turn the standardized read-out back into metres
-            mean, std = readout_pose_stats if readout_pose_stats is not None else (torch.zeros(5), torch.ones(5))
-            self.register_buffer("readout_out_mean", torch.as_tensor(mean, dtype=torch.float32).reshape(STATE_DIMS))
-            self.register_buffer("readout_out_std", torch.as_tensor(std, dtype=torch.float32).reshape(STATE_DIMS))
+            self._stats_buffers("readout_out", readout_pose_stats, STATE_DIMS)
         # readout_standardize 'element': the read-out's own input statistics, one per camera, slot and dimension
         self.readout_elementwise = readout and policy.readout_standardize == "element"
         if self.readout_elementwise:
-            n_in = self.cams * K * D
-            mean, std = readout_stats if readout_stats is not None else (torch.zeros(n_in), torch.ones(n_in))
-            self.register_buffer("readout_in_mean", torch.as_tensor(mean, dtype=torch.float32).reshape(n_in))
-            self.register_buffer("readout_in_std", torch.as_tensor(std, dtype=torch.float32).reshape(n_in))
+            self._stats_buffers("readout_in", readout_stats, self.cams * K * D)
         self.per_step = self.cams * self.visual.tokens_out + 1 + (self.goal is not None) + readout + 1
         self.pos = nn.Parameter(torch.zeros(self.T * self.per_step, W))
         layer = nn.TransformerEncoderLayer(W, heads, 4 * W, dropout=policy.dropout, activation="gelu",
@@ -75,9 +70,7 @@ class SequencePolicy(nn.Module):
         self.norm = nn.LayerNorm(W)
         self.readout = mlp([W, W, W, self.H * (7 if self.bce else 8)])
         self.gripper_head = mlp([W, W, W, self.H]) if self.bce else None
-        mean, std = token_stats if token_stats is not None else (torch.zeros(D), torch.ones(D))
-        self.register_buffer("token_mean", torch.as_tensor(mean, dtype=torch.float32).reshape(D))
-        self.register_buffer("token_std", torch.as_tensor(std, dtype=torch.float32).reshape(D))
+        self._stats_buffers("token", token_stats, D)
         self.aux_head = mlp([W, W, 3]) if policy.aux_object_weight > 0 else None
         self.first_frame = bool(policy.first_frame)
         self.prefix = self.cams * self.visual.tokens_out if self.first_frame else 0
@@ -86,6 +79,13 @@ class SequencePolicy(nn.Module):
             nn.init.normal_(self.first_pos, std=0.02)
         nn.init.normal_(self.pos, std=0.02)
         nn.init.normal_(self.action_token, std=0.02)
+
+    def _stats_buffers(self, prefix: str, stats: tuple | None, n: int) -> None:
+        """Buffers ``{prefix}_mean`` / ``{prefix}_std`` of n values (identity standardization without ``stats``): saved
+        in the checkpoint with the weights."""
+        mean, std = stats if stats is not None else (torch.zeros(n), torch.ones(n))
+        self.register_buffer(f"{prefix}_mean", torch.as_tensor(mean, dtype=torch.float32).reshape(n))
+        self.register_buffer(f"{prefix}_std", torch.as_tensor(std, dtype=torch.float32).reshape(n))
 
     def _visual(self, z):
         """Standardized tokens (B, T, C, K, D) -> (B, T, C, k, W)."""
