@@ -173,7 +173,7 @@ def load_data(policy: PolicySettings | dict, features_path, frames_path):
         extra["readout"] = ((pose - stats["readout_mean"]) / stats["readout_std"]).astype(np.float32)
         if policy.readout_tcp_relative:
             extra["tcp"] = tcp_pos
-        if policy.readout_standardize == "element":
+        if policy.readout_standardize == "element" and not policy.readout_scenes:  # else fit_readout sets them
             stats["readout_in_mean"], stats["readout_in_std"] = element_stats(
                 gather_tokens(tokens, _spread(train_frames))[:, list(policy.cameras)])
     if policy.first_frame:
