@@ -84,15 +84,9 @@ def test_scene_seeds_must_clear_the_demo_seeds_and_the_evaluation_pool(tmp_path,
     assert not (tmp_path / "s.zarr").exists()
 
 
-def test_readout_scenes_needs_the_object_readout(default_config):
-    x = {"object_readout": False, "readout_scenes": True}
-    cfg = {**default_config, "experiments": {**default_config["experiments"], "x": x}}
-    with pytest.raises(C.ConfigError, match=r"experiments.x.readout_scenes: .* needs object_readout: true"):
-        C.validate(cfg)
-
-
-@pytest.mark.parametrize("key, value", [("readout_tcp_relative", True), ("readout_noise", 0.01)])
-def test_readout_token_options_need_the_object_readout(default_config, key, value):
+@pytest.mark.parametrize("key, value", [("readout_scenes", True), ("readout_tcp_relative", True),
+                                        ("readout_noise", 0.01)])
+def test_readout_options_need_the_object_readout(default_config, key, value):
     x = {"object_readout": False, "readout_scenes": False, key: value}
     cfg = {**default_config, "experiments": {**default_config["experiments"], "x": x}}
     with pytest.raises(C.ConfigError, match=rf"experiments.x.{key}: .* needs object_readout: true"):
