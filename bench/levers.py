@@ -94,17 +94,24 @@ def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: in
 
 def readout_errors(steps: pl.DataFrame) -> dict:
     """Median distance (cm) between the policy's object read-out and the true object, over the closed-loop steps
-    before a grasp (after it the object rides in a hand that hides it) and at each episode's first step; empty for
+    before a grasp (after it the object rides in a hand that hides it) and at each episode's first step, and the
+    same for the estimate the policy saw (``obj_seen``: the read-out after evaluation.readout_filter); empty for
     policies without a read-out."""
     est = np.asarray(steps["obj_est"].to_list(), dtype=np.float64)
     if np.isnan(est).all():
         return {}
-    err = 100 * np.linalg.norm(est - np.asarray(steps["obj_pos"].to_list()), axis=1)
+    obj = np.asarray(steps["obj_pos"].to_list())
+    err = 100 * np.linalg.norm(est - obj, axis=1)
     free = ~np.asarray(steps["is_grasped"].to_list(), dtype=bool)
     first = (steps["step"] == 0).to_numpy()
-    return {"readout_cl_cm": round(float(np.median(err[free])), 2),
-            "readout_cl_p90_cm": round(float(np.percentile(err[free], 90)), 2),
-            "readout_cl_first_cm": round(float(np.median(err[first])), 2)}
+    row = {"readout_cl_cm": round(float(np.median(err[free])), 2),
+           "readout_cl_p90_cm": round(float(np.percentile(err[free], 90)), 2),
+           "readout_cl_first_cm": round(float(np.median(err[first])), 2)}
+    if "obj_seen" in steps.columns:
+        seen = 100 * np.linalg.norm(np.asarray(steps["obj_seen"].to_list(), dtype=np.float64) - obj, axis=1)
+        row |= {"seen_cl_cm": round(float(np.median(seen[free])), 2),
+                "seen_cl_p90_cm": round(float(np.percentile(seen[free], 90)), 2)}
+    return row
 
 
 def main() -> None:

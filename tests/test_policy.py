@@ -183,7 +183,7 @@ def test_object_readout_learns_the_pose_and_the_action_loss_cannot_reshape_it(tm
     assert log["loss_readout"][-1] < log["loss_readout"][0]
 
 
-def test_readout_noise_blurs_only_the_position_the_policy_sees(tmp_path):
+def test_readout_noise_and_a_given_estimate_change_only_what_the_policy_sees(tmp_path):
     features, frames = write_stores(tmp_path)
     policy = policy_settings(object_readout=True)
     tokens, labels, *_ = load_data(policy, features, frames)
@@ -196,6 +196,10 @@ def test_readout_noise_blurs_only_the_position_the_policy_sees(tmp_path):
     noisy, noisy_aux = model(*args, aux=True, readout_noise=torch.full((3,), 0.5))
     assert not torch.allclose(clean, noisy)  # the policy saw another position
     assert torch.equal(clean_aux["readout"], noisy_aux["readout"])  # the read-out itself (and its loss) did not move
+    # an estimate given from outside (evaluation.readout_filter) is what the policy sees; the read-out stays
+    assert torch.equal(clean, model(*args, readout_seen=clean_aux["readout"]))
+    shifted, shifted_aux = model(*args, aux=True, readout_seen=clean_aux["readout"] + 0.5)
+    assert not torch.allclose(clean, shifted) and torch.equal(clean_aux["readout"], shifted_aux["readout"])
 
 
 def test_windows_pad_at_episode_edges():

@@ -19,6 +19,7 @@ import torch
 from tqdm import tqdm
 
 from ..encoders import registry
+from ..encoders.state import state_tokens
 from ..features.encode import sha256
 from ..features.slot_geometry import full_image_windows, slot_geometry
 from ..frames.store import open_store
@@ -113,6 +114,7 @@ class ClosedLoop:
         self.cap = ev["episode_cap"][self.task]
         self.execute = min(ev["execute_actions"], p.horizon)
         self.ensemble = ev.get("temporal_ensemble", 0.0)
+        self.readout_filter = ev.get("readout_filter", "none")
         self.trivial_steps = ev["trivial_steps"]
 
     def close(self) -> None:
@@ -154,13 +156,23 @@ class ClosedLoop:
         return tokens, proprio, self._goal(obs, labels["goal_pos"]), labels
 
     @torch.inference_mode()
-    def object_estimate(self, tokens: torch.Tensor) -> list[float]:
-        """Where the policy's object read-out places the object from this step's tokens (m; NaN without a
-        read-out): logged per step, so the closed-loop perception error can be set beside the probes'."""
+    def object_pose(self, tokens: torch.Tensor) -> torch.Tensor | None:
+        """The policy's object read-out of this step's tokens: the standardized pose (5,), None without a read-out."""
         if self.model.object_readout is None:
+            return None
+        return self.model.object_pose(tokens.to(self.device)).cpu()
+
+    def true_pose(self, labels: dict) -> torch.Tensor:
+        """The simulator's object pose, standardized as the read-out's: the read-out a perfect perception gives."""
+        true = state_tokens(labels["obj_pos"], labels["obj_quat"]).reshape(-1)
+        return torch.from_numpy((true - self.stats["readout_mean"]) / self.stats["readout_std"]).float()
+
+    def object_position(self, pose: torch.Tensor | None) -> list[float]:
+        """A standardized read-out pose -> the object's position (m; NaN without a read-out): logged per step, so
+        the closed-loop perception error can be set beside the probes'."""
+        if pose is None:
             return [float("nan")] * 3
-        pose = self.model.object_pose(tokens.to(self.device)).cpu().numpy()
-        pos = pose[:3] * self.stats["readout_std"][:3] + self.stats["readout_mean"][:3]
+        pos = pose[:3].numpy() * self.stats["readout_std"][:3] + self.stats["readout_mean"][:3]
         return pos.astype(float).tolist()
 
     @torch.inference_mode()
@@ -169,19 +181,29 @@ class ClosedLoop:
         T = self.policy.window
         window: deque = deque(maxlen=T)
         steps: dict[str, list] = {k: [] for k in ("step", "action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos",
-                                                   "obj_est", "reward")}
+                                                   "obj_est", "obj_seen", "reward")}
+        estimate = StaticObjectFilter() if self.readout_filter == "static_mean" else None
+        action = None
         chunks: deque = deque(maxlen=-(-self.policy.horizon // self.execute))  # (query step, (H, 8) actions)
         success, total = False, 0.0
         for t in range(self.cap):
             tokens, proprio, goal, labels = self._observe(obs, first=t == 0)
             if t == 0:
                 first = tokens[None].to(self.device)  # the episode's first frame, for first_frame policies
-            window.append((tokens, proprio, goal, labels["tcp_pos"].astype(np.float32)))
+            pose = self.object_pose(tokens)
+            seen = pose
+            if estimate is not None and pose is not None:
+                seen = estimate(pose, gripper_closed=action is not None and action[7] < 0)
+            if self.readout_filter == "true_pose" and pose is not None:
+                seen = self.true_pose(labels)
+            window.append((tokens, proprio, goal, labels["tcp_pos"].astype(np.float32),
+                           seen if seen is not None else torch.zeros(0)))
             while len(window) < T:
                 window.appendleft(window[0])
             if t % self.execute == 0:  # execute <= H: a chunk always covers the steps until the next query
-                batch = [torch.stack([torch.as_tensor(w[i]) for w in window])[None].to(self.device) for i in range(4)]
-                pred = self.model(*batch[:3], first, tcp=batch[3])[0].cpu().numpy()
+                batch = [torch.stack([torch.as_tensor(w[i]) for w in window])[None].to(self.device) for i in range(5)]
+                pred = self.model(*batch[:3], first, tcp=batch[3],
+                                  readout_seen=batch[4] if seen is not None else None)[0].cpu().numpy()
                 qpos = labels["qpos"][:7] if self.residual else None
                 chunks.append((t, normalization.action_from_model(pred, self.stats, qpos=qpos)))
             if self.ensemble:
@@ -194,8 +216,8 @@ class ClosedLoop:
             total += reward
             for k, v in (("step", t), ("action", action.tolist()), ("is_grasped", labels["is_grasped"]),
                          ("tcp_pos", labels["tcp_pos"].tolist()), ("goal_pos", labels["goal_pos"].tolist()),
-                         ("obj_pos", labels["obj_pos"].tolist()), ("obj_est", self.object_estimate(tokens)),
-                         ("reward", reward)):
+                         ("obj_pos", labels["obj_pos"].tolist()), ("obj_est", self.object_position(pose)),
+                         ("obj_seen", self.object_position(seen)), ("reward", reward)):
                 steps[k].append(v)
             if bool(info["success"][0]):
                 success = True
@@ -204,6 +226,26 @@ class ClosedLoop:
         row = {"seed": seed, "success": success, "steps": n, "trivial": success and n < self.trivial_steps,
                "return": total}
         return row, steps
+
+
+class StaticObjectFilter:
+    """The object estimate under a static-object prior: until the hand grips, the object lies where it lies, so
+    every frame since the gripper last opened is a new look at the same pose and their mean is the estimate (the
+    read-out's per-frame errors are largely independent across the arm's changing views: the mean of the frames
+    so far halves the error near the hand, docs/measurements.md). While the gripper is closed the object may move
+    with the hand: the frame's own estimate passes through, and the mean restarts when the gripper opens."""
+
+    def __init__(self):
+        self.total: torch.Tensor | None = None
+        self.count = 0
+
+    def __call__(self, pose: torch.Tensor, gripper_closed: bool) -> torch.Tensor:
+        if gripper_closed:
+            self.total, self.count = None, 0
+            return pose
+        self.total = pose.clone() if self.total is None else self.total + pose
+        self.count += 1
+        return self.total / self.count
 
 
 def ensemble_action(chunks, t: int, decay: float) -> np.ndarray:

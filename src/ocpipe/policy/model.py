@@ -105,11 +105,13 @@ class SequencePolicy(nn.Module):
         """Raw tokens (..., C, K, D) -> the read-out's standardized object pose (..., 5)."""
         return self.object_readout(self.readout_input(tokens))
 
-    def tokens(self, tokens, proprio, goal, first=None, readout_noise=None, tcp=None):
+    def tokens(self, tokens, proprio, goal, first=None, readout_noise=None, tcp=None, readout_seen=None):
         """(B, T, C, K, D), (B, T, P), (B, T, G) [, first frame (B, C, K, D)] -> the flattened sequence
         (B, prefix + T * per_step, W) and the object read-out (B, T, 5) (None without one). ``readout_noise``
         (3,): std of Gaussian noise added to the read-out's (standardized) position before the policy sees it.
-        ``tcp`` (B, T, 3): the TCP's position (m), for readout_tcp_relative policies."""
+        ``tcp`` (B, T, 3): the TCP's position (m), for readout_tcp_relative policies. ``readout_seen`` (B, T, 5):
+        the (standardized) object pose the policy sees in place of each step's own read-out, e.g. one filtered
+        over the episode's frames (evaluation.readout_filter)."""
         B, T = tokens.shape[:2]
         if T != self.T:
             raise ValueError(f"policy expects windows of T={self.T} steps, got {T}")
@@ -120,7 +122,7 @@ class SequencePolicy(nn.Module):
         readout = None
         if self.object_readout is not None:
             readout = self.object_pose(tokens)
-            seen = readout.detach()
+            seen = readout.detach() if readout_seen is None else readout_seen
             if readout_noise is not None:
                 seen = torch.cat([seen[..., :3] + readout_noise * torch.randn_like(seen[..., :3]), seen[..., 3:]], -1)
             if self.readout_tcp:
@@ -139,13 +141,13 @@ class SequencePolicy(nn.Module):
         return torch.cat([prefix, seq], dim=1), readout
 
     def forward(self, tokens, proprio, goal, first=None, all_steps: bool = False, aux: bool = False,
-                readout_noise=None, tcp=None):
+                readout_noise=None, tcp=None, readout_seen=None):
         """-> (B, H, 8) predictions for the current step, or (B, T, H, 8) for every step's action token; with
         ``aux`` also a dict of the auxiliary predictions: 'object_pos' (B, 3), the auxiliary head's object position
         at the current step, and 'readout' (B, T, 5), the object read-out of every step (each None when the
         policy has no such head). ``first``: the episode's first-frame tokens (B, C, K, D), for first_frame
-        policies only. ``readout_noise``, ``tcp``: see tokens."""
-        seq, readout = self.tokens(tokens, proprio, goal, first, readout_noise, tcp)
+        policies only. ``readout_noise``, ``tcp``, ``readout_seen``: see tokens."""
+        seq, readout = self.tokens(tokens, proprio, goal, first, readout_noise, tcp, readout_seen)
         L = seq.shape[1]
         mask = nn.Transformer.generate_square_subsequent_mask(L, device=seq.device, dtype=seq.dtype)
         h = self.norm(self.decoder(seq, mask=mask, is_causal=True))

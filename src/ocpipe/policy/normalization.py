@@ -86,8 +86,8 @@ def action_to_model(action: np.ndarray, stats: dict) -> np.ndarray:
 
 def action_from_model(pred: np.ndarray, stats: dict, gripper_threshold: float = 0.0,
                       qpos: np.ndarray | None = None) -> np.ndarray:
-    """De-normalize joints (adding the current joints ``qpos`` back for residual targets); gripper = +1 (closed)
-    if the output (or BCE logit) > threshold else -1. ``pred`` is (H, 8) or (B, H, 8)."""
+    """De-normalize joints (adding the current joints ``qpos`` back for residual targets); gripper = +1 (open)
+    if the output (or BCE logit) > threshold else -1 (closed). ``pred`` is (H, 8) or (B, H, 8)."""
     out = pred * stats["action_std"] + stats["action_mean"]
     if qpos is not None:
         out = out + residual_base(np.asarray(qpos, dtype=np.float32))[..., None, :]
