@@ -202,6 +202,38 @@ def test_readout_noise_and_a_given_estimate_change_only_what_the_policy_sees(tmp
     assert not torch.allclose(clean, shifted) and torch.equal(clean_aux["readout"], shifted_aux["readout"])
 
 
+def test_without_visual_tokens_the_policy_sees_the_slots_only_through_its_read_out(tmp_path):
+    policy = policy_settings(object_readout=True, visual_head="none", goal="3d")
+    torch.manual_seed(0)
+    model = SequencePolicy(policy, 7, 16).eval()
+    tokens, proprio, goal = inputs(policy)
+    seq, readout = model.tokens(tokens, proprio, goal)
+    assert seq.shape[1] == policy["window"] * 4  # joints, goal, read-out, action token per step
+    fixed = readout.detach()
+    # with the read-out's estimate held fixed, nothing else of the tokens reaches the actions
+    torch.testing.assert_close(model(tokens + 1.0, proprio, goal, readout_seen=fixed),
+                               model(tokens, proprio, goal, readout_seen=fixed), rtol=0, atol=0)
+    features, frames = write_stores(tmp_path)
+    log = train({**policy, "epochs": 1, "save_every": 1, "val_episodes": 1}, 0, features, frames, tmp_path / "run",
+                progress=False)
+    assert np.isfinite(log["val_joint_err_rad"].to_numpy()).all()
+
+
+def test_visual_dropout_blanks_steps_in_training_only():
+    policy = policy_settings(object_readout=True, visual_dropout=1.0, dropout=0.0)  # only the visual one random
+    torch.manual_seed(0)
+    model = SequencePolicy(policy, 7, 16)
+    tokens, proprio, goal = inputs(policy)
+    fixed = model.tokens(tokens, proprio, goal)[1].detach()
+    model.train()
+    # every step blanked: the visual tokens do not reach the actions (the read-out's estimate is held fixed)
+    torch.testing.assert_close(model(tokens + 1.0, proprio, goal, readout_seen=fixed),
+                               model(tokens, proprio, goal, readout_seen=fixed), rtol=0, atol=0)
+    model.eval()  # evaluation sees every token
+    assert not torch.allclose(model(tokens + 1.0, proprio, goal, readout_seen=fixed),
+                              model(tokens, proprio, goal, readout_seen=fixed))
+
+
 def test_windows_pad_at_episode_edges():
     labels = Labels.from_offsets([0, 4, 10], np.zeros((10, 7)), np.zeros((10, 0)), np.zeros((10, 8)))
     frames = np.array([0, 1, 4, 9])

@@ -85,7 +85,7 @@ def test_scene_seeds_must_clear_the_demo_seeds_and_the_evaluation_pool(tmp_path,
 
 
 @pytest.mark.parametrize("key, value", [("readout_scenes", True), ("readout_tcp_relative", True),
-                                        ("readout_noise", 0.01)])
+                                        ("readout_noise", 0.01), ("visual_head", "none")])
 def test_readout_options_need_the_object_readout(default_config, key, value):
     x = {"object_readout": False, "readout_scenes": False, key: value}
     cfg = {**default_config, "experiments": {**default_config["experiments"], "x": x}}

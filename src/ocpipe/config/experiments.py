@@ -52,6 +52,9 @@ def problems(policy: dict) -> list[str]:
         if policy["encoder"] == "state" or policy.get("slot_geometry"):
             out.append(f"  {key}.readout_scenes: needs an image encoder without slot_geometry (scenes store tokens "
                        "carry no mask geometry)")
+    if policy.get("visual_head") == "none" and not policy.get("object_readout"):
+        out.append(f"  {key}.visual_head: 'none' leaves the policy only the object read-out's token, so it needs "
+                   "object_readout: true")
     for name in ("readout_tcp_relative", "readout_noise"):
         if policy.get(name) and not policy.get("object_readout"):
             out.append(f"  {key}.{name}: acts on the object read-out's token, so it needs object_readout: true")

@@ -81,8 +81,20 @@ class SlotTransformerHead(nn.Module):
         return y.mean(-2).reshape(*lead, 1, -1)
 
 
+class NoVisualTokens(nn.Module):
+    """(..., K, D) -> (..., 0, W): the policy sees the frozen tokens only through its object read-out."""
+
+    def __init__(self, K: int, D: int, width: int, heads: int):
+        super().__init__()
+        self.width = width
+        self.tokens_out = 0
+
+    def forward(self, x):
+        return x.new_zeros(*x.shape[:-2], 0, self.width)
+
+
 HEADS = {"tokens": TokenHead, "flatten": FlattenHead, "deepsets": DeepSetsHead, "weighted_pool": WeightedPoolHead,
-         "slot_transformer": SlotTransformerHead}
+         "slot_transformer": SlotTransformerHead, "none": NoVisualTokens}
 
 
 class CrossCameraFusion(nn.Module):

@@ -20,7 +20,10 @@ is fitted before the policy, on the demos' frames plus many extra scenes, and fr
 read-out standardizes its input per token dimension like the visual tokens, or (`readout_standardize: element`)
 per camera, slot and dimension with its own statistics: slots keep their own offsets, which the pooled statistics
 leave in and which cost the read-out half its precision. `readout_tcp_relative` adds the read-out's position
-minus the TCP to its token (what the control's token holds with the true position)."""
+minus the TCP to its token (what the control's token holds with the true position). `visual_dropout` blanks a
+training step's standardized visual tokens (to their mean) with that chance, and `visual_head: none` leaves them out
+altogether: with 100 demos the policy can fit its actions to the slots' many dimensions instead of to the read-out's
+estimate, and then acts on the slots' imprecise object position in closed loop."""
 
 from __future__ import annotations
 
@@ -45,6 +48,7 @@ class SequencePolicy(nn.Module):
         self.cams = len(policy.cameras)
         self.goal_kind = policy.goal
         self.tanh = policy.action_head == "tanh"
+        self.visual_dropout = policy.visual_dropout
         self.bce = policy.gripper == "bce"
         self.visual = HEADS[policy.visual_head](K, D, W, heads)
         self.fusion = CrossCameraFusion(W, heads) if policy.fusion == "cross_attention" else None
@@ -116,6 +120,9 @@ class SequencePolicy(nn.Module):
         if T != self.T:
             raise ValueError(f"policy expects windows of T={self.T} steps, got {T}")
         z = self._standardize(tokens)
+        if self.training and self.visual_dropout > 0:  # blank whole steps: the policy must act without the slots
+            blank = torch.rand(B, T, 1, 1, 1, device=z.device) < self.visual_dropout
+            z = z.masked_fill(blank, 0.0)
         parts = [self._visual(z).flatten(2, 3), self.proprio(proprio)[:, :, None]]
         if self.goal is not None:
             parts.append(self.goal(goal)[:, :, None])

@@ -29,7 +29,7 @@ class PolicySettings:
     heads: int  # attention heads
     dropout: float
     fusion: str  # concat | cross_attention (between the two cameras' tokens)
-    visual_head: str  # tokens | flatten | deepsets | weighted_pool | slot_transformer
+    visual_head: str  # tokens | flatten | deepsets | weighted_pool | slot_transformer | none (read-out only)
     action_head: str  # linear | tanh
     gripper: str  # regression | bce
     # training
@@ -56,6 +56,7 @@ class PolicySettings:
     readout_yaw_weight: float = 1.0  # weight of the yaw terms in the read-out's loss (position's: 1)
     readout_noise: float = 0.0  # std (m) of noise on the read-out's position as the policy sees it in training
     readout_tcp_relative: bool = False  # the read-out's token also holds its object position minus the TCP
+    visual_dropout: float = 0.0  # chance that a training step's visual tokens are blanked (the read-out stays)
     val_episodes: int = 0  # last demos held out of training for the open-loop error
     name: str | None = None  # the experiment's name (config `experiments`)
 
