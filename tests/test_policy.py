@@ -234,6 +234,24 @@ def test_visual_dropout_blanks_steps_in_training_only():
                               model(tokens, proprio, goal, readout_seen=fixed))
 
 
+@pytest.mark.parametrize("goal", ["2d", "3d"])
+def test_goal_norm_standardizes_the_goal_in_training_and_in_the_checkpoint(tmp_path, goal):
+    features, frames = write_stores(tmp_path)
+    plain = load_data(policy_settings(goal=goal), features, frames)
+    assert "goal_mean" not in plain[2]
+    tokens, labels, stats, _, (train_frames, _) = load_data(policy_settings(goal=goal, goal_norm="zscore"), features,
+                                                           frames)
+    np.testing.assert_allclose(labels.goal[train_frames].mean(0), 0.0, atol=1e-4)
+    np.testing.assert_allclose(labels.goal[train_frames].std(0), 1.0, atol=1e-3)
+    # the closed loop standardizes a raw goal with the same statistics
+    np.testing.assert_allclose(normalization.goal(plain[1].goal, stats), labels.goal, atol=1e-5)
+    assert normalization.goal(plain[1].goal, plain[2]) is plain[1].goal
+    policy = policy_settings(goal=goal, goal_norm="zscore", epochs=1, save_every=1)
+    train(policy, 0, features, frames, tmp_path / "run", progress=False)
+    _, saved, *_ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0001.pt")
+    np.testing.assert_allclose(saved["goal_mean"], stats["goal_mean"])
+
+
 def test_windows_pad_at_episode_edges():
     labels = Labels.from_offsets([0, 4, 10], np.zeros((10, 7)), np.zeros((10, 0)), np.zeros((10, 8)))
     frames = np.array([0, 1, 4, 9])

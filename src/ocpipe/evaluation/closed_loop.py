@@ -153,7 +153,7 @@ class ClosedLoop:
         tokens = self._tokens(obs, labels)
         x = normalization.proprio_input(labels["qpos"], labels["tcp_pos"], self.policy.proprio)
         proprio = normalization.proprio(x[None], self.stats)[0]
-        return tokens, proprio, self._goal(obs, labels["goal_pos"]), labels
+        return tokens, proprio, normalization.goal(self._goal(obs, labels["goal_pos"]), self.stats), labels
 
     @torch.inference_mode()
     def object_pose(self, tokens: torch.Tensor) -> torch.Tensor | None:

@@ -11,7 +11,10 @@ Proprioception, by the `proprio` setting:
   qpos9_grouped  qpos[:9], joints z-scored per joint, the two fingers with one pooled mean/std of their own.
   joints7_tcp    qpos[:7] and the gripper's tool-centre point (xyz, world frame), z-scored per dimension: the
                  robot's own hand position, so the policy need not learn forward kinematics from 100 demos to
-                 relate its hand to the object."""
+                 relate its hand to the object.
+Goal: as given (the 3D goal in metres, the 2D one in image fractions), or with `goal_norm: zscore` z-scored per
+dimension: the 2D goal of the workspace spans only ~0.1 of the image, so a success radius of 2.5 cm is ~0.02 of
+an input the network first has to scale up."""
 
 from __future__ import annotations
 
@@ -46,6 +49,14 @@ def proprio_stats(x: np.ndarray, mode: str) -> tuple[np.ndarray, np.ndarray]:
         (jm, js), (fm, fs) = (x[:, :7].mean(0), x[:, :7].std(0)), _pooled(x[:, 7:9])
         return np.concatenate([jm, fm]), np.concatenate([js, fs])
     raise ValueError(f"policy.proprio: unknown mode {mode!r} (allowed: {', '.join(PROPRIO_MODES)})")
+
+
+def goal(x: np.ndarray, stats: dict) -> np.ndarray:
+    """The goal as the policy sees it: z-scored per dimension for a policy trained with `goal_norm: zscore` (its
+    stats hold goal_mean / goal_std), else as given."""
+    if "goal_mean" not in stats:
+        return x
+    return ((x - stats["goal_mean"]) / stats["goal_std"]).astype(np.float32)
 
 
 def compute(proprio_x: np.ndarray, action: np.ndarray, proprio_mode: str) -> dict[str, np.ndarray]:

@@ -181,8 +181,12 @@ def load_data(policy: PolicySettings | dict, features_path, frames_path):
         extra["first"] = (starts, gather_tokens(tokens, starts).astype(np.float32))
     if policy.token_norm == "zscore":
         stats["token_mean"], stats["token_std"] = token_stats(tokens, train_frames)
+    goal = goal_array(frames, policy)
+    if policy.goal_norm == "zscore" and goal.shape[1]:
+        stats["goal_mean"] = goal[train_frames].mean(0)
+        stats["goal_std"] = np.maximum(goal[train_frames].std(0), normalization.EPS)
     labels = Labels.from_offsets(
-        offsets, normalization.proprio(proprio_x, stats), goal_array(frames, policy), model_action, **extra
+        offsets, normalization.proprio(proprio_x, stats), normalization.goal(goal, stats), model_action, **extra
     )
     meta = {
         "K": int(tokens.shape[2]),
