@@ -39,7 +39,7 @@ TINY = {
     "policy": {"resolution": 64, "window": 3, "horizon": 4, "width": 32, "layers": 1, "heads": 4, "epochs": EPOCHS,
                "save_every": SAVE_EVERY, "batch_size": 2, "val_episodes": 1,
                # no scenes job: the kill tests plan exact job sets, and the scenes job would race the features job
-               "object_readout": False, "readout_scenes": False},
+               "object_readout": False, "readout_scenes": False, "visual_head": "tokens"},
     "evaluation": {"episode_cap": {"PickCube-v1": 12}, "execute_actions": 2, "sweep_episodes": 1, "stability_runs": 1,
                    "stability_episodes": 1},
     # Table 5.1 with one experiment in every row: the table's whole chain (train, sweep, best, stability) with a

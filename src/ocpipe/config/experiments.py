@@ -54,7 +54,7 @@ def problems(policy: dict) -> list[str]:
                        "carry no mask geometry)")
     if policy.get("visual_head") == "none" and not policy.get("object_readout"):
         out.append(f"  {key}.visual_head: 'none' leaves the policy only the object read-out's token, so it needs "
-                   "object_readout: true")
+                   "object_readout: true (or visual_head: tokens)")
     for name in ("readout_tcp_relative", "readout_noise"):
         if policy.get(name) and not policy.get("object_readout"):
             out.append(f"  {key}.{name}: acts on the object read-out's token, so it needs object_readout: true")
