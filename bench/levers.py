@@ -57,7 +57,7 @@ def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: in
         scenes = results / "features" / f"{store}.scenes.zarr" if policy.get("readout_scenes") else None
         log = train(policy, config["seed"], results / "features" / f"{store}.zarr",
                     results / "frames" / f"{experiments.frames_store(policy)}.zarr", out_dir, threads=threads,
-                    scenes_path=scenes)
+                    scenes_path=scenes, camera_approx=config["camera_approx"])
     train_s = float(log["seconds"].sum())
     torch.set_num_threads(threads)
     ckpt = out_dir / "checkpoints" / f"epoch_{policy['epochs']:04d}.pt"

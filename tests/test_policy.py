@@ -1,4 +1,5 @@
 import itertools
+from contextlib import nullcontext
 
 import numpy as np
 import polars as pl
@@ -373,3 +374,69 @@ def test_readout_tcp_relative_gives_the_token_the_estimate_minus_the_tcp(tmp_pat
         model(*args)
     log = train(policy, 0, features, frames, tmp_path / "run", progress=False)  # trains and scores open-loop
     assert np.isfinite(log["val_joint_err_rad"].to_numpy()).all()
+
+
+def _with_cameras(frames_path, config):
+    """The synthetic store with the configured cameras' matrices, and its goal projected through them."""
+    import zarr
+
+    from ocpipe.sim import envs, projection
+    frames = zarr.open_group(str(frames_path), mode="r+")
+    K, E = envs.approx_camera_matrices({"camera_approx": config["cameras"]}, ["base", "side"], 64)
+    aK, aE = envs.approx_camera_matrices(config, ["base", "side"], 64)
+    goal = frames["goal_pos"][:]
+    for name, data in {"cam_intrinsic": K, "cam_extrinsic": E,
+                       "goal2d_exact": projection.goal2d(goal, K, E, 64),
+                       "goal2d_approx": projection.goal2d(goal, aK, aE, 64)}.items():
+        frames.create_array(name, shape=data.shape, dtype="float32", chunks=data.shape, overwrite=True)[...] = data
+    frames.attrs["resolution"] = 64
+    return K, E
+
+
+@pytest.mark.parametrize("goal,calibration", [("3d", "exact"), ("2d", "exact"), ("2d", "approx")])
+def test_goal_relative_adds_the_goal_minus_the_tcp_as_the_closed_loop_computes_it(tmp_path, default_config, goal,
+                                                                                   calibration):
+    from types import SimpleNamespace
+
+    from ocpipe.evaluation.closed_loop import ClosedLoop
+    from ocpipe.frames.store import open_store
+    from ocpipe.policy.training import goal_array
+    from ocpipe.sim import envs, projection
+
+    features, frames_path = write_stores(tmp_path)
+    policy = PolicySettings.of(policy_settings(goal=goal, goal_calibration=calibration, goal_relative="tcp"))
+    if calibration == "exact" and goal == "2d":  # a store without its cameras' matrices is named, not guessed at
+        with pytest.raises(ValueError, match="no \\['cam_intrinsic', 'cam_extrinsic'\\].*goal_relative"):
+            goal_array(open_store(frames_path), policy)
+    K, E = _with_cameras(frames_path, default_config)
+    frames = open_store(frames_path)
+    plain = goal_array(frames, {**policy.as_dict(), "goal_relative": "none"})
+    rel = goal_array(frames, policy, default_config["camera_approx"])
+    G = plain.shape[1]
+    assert rel.shape == (len(plain), 2 * G)
+    np.testing.assert_array_equal(rel[:, :G], plain)
+    tcp = frames["tcp_pos"][:]
+    if goal == "3d":
+        np.testing.assert_allclose(rel[:, G:], frames["goal_pos"][:] - tcp, atol=1e-6)
+    else:  # the TCP goes through the goal's own camera model: the approx goal minus the approx TCP
+        cams = (K, E) if calibration == "exact" else envs.approx_camera_matrices(default_config, ["base", "side"], 64)
+        np.testing.assert_allclose(rel[:, G:], plain - projection.goal2d(tcp, *cams, 64), atol=1e-5)
+    assert np.ptp(rel[:, G:] - rel[:, :G], axis=0).min() > 0.01  # the hand moves: not the goal in disguise
+    # the closed loop builds the same input from the simulator's goal, TCP and camera parameters
+    aK, aE = envs.approx_camera_matrices(default_config, ["base", "side"], 64)
+    params = {u: {"intrinsic_cv": torch.from_numpy(K[i])[None], "extrinsic_cv": torch.from_numpy(E[i])[None]}
+              for i, u in enumerate(["b", "s"])}
+    loop = SimpleNamespace(policy=policy, approx_K=aK, approx_E=aE, uids=["b", "s"])
+    for i in (0, 17, 60):
+        got = ClosedLoop._goal(loop, {"sensor_param": params}, frames["goal_pos"][i], tcp[i])
+        np.testing.assert_allclose(got, rel[i], atol=1e-5)
+    with pytest.raises(ValueError, match="camera_approx") if calibration == "approx" else nullcontext():
+        goal_array(frames, policy)
+    # the model takes the wider goal, and training runs end to end
+    model = SequencePolicy(policy, 7, 16)
+    tokens, proprio, _ = inputs(policy.as_dict())
+    assert model(tokens, proprio, torch.randn(3, policy.window, 2 * G)).shape == (3, policy.horizon, 8)
+    train(policy, 0, features, frames_path, tmp_path / "run", progress=False,
+          camera_approx=default_config["camera_approx"])
+    _, stats, saved, _ = load_policy(tmp_path / "run" / "checkpoints" / f"epoch_{policy.epochs:04d}.pt")
+    assert saved.goal_relative == "tcp"

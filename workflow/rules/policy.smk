@@ -19,5 +19,6 @@ rule train:
     params:
         policy=policy_of,
         seed=config["seed"],
+        camera_approx=config["camera_approx"],
     script:
         "../scripts/train.py"

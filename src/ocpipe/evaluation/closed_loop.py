@@ -120,20 +120,22 @@ class ClosedLoop:
     def close(self) -> None:
         self.env.close()
 
-    def _goal(self, obs, goal_pos: np.ndarray) -> np.ndarray:
+    def _goal(self, obs, goal_pos: np.ndarray, tcp_pos: np.ndarray) -> np.ndarray:
+        """The goal input as training.goal_array builds it from the frames store (before goal_norm)."""
         kind = self.policy.goal
         if kind == "none":
             return np.zeros(0, np.float32)
-        if kind == "3d":
-            return goal_pos.astype(np.float32)
-        res = self.policy.resolution
-        if self.policy.goal_calibration == "approx":
-            K, E = self.approx_K, self.approx_E
-        else:
-            params = obs["sensor_param"]
-            K = np.stack([params[u]["intrinsic_cv"][0].cpu().numpy() for u in self.uids])
-            E = np.stack([params[u]["extrinsic_cv"][0].cpu().numpy() for u in self.uids])
-        return projection.goal2d(goal_pos[None], K, E, res)[0].astype(np.float32)
+        points = np.stack([goal_pos, tcp_pos]).astype(np.float64)
+        if kind == "2d":
+            if self.policy.goal_calibration == "approx":
+                K, E = self.approx_K, self.approx_E
+            else:
+                params = obs["sensor_param"]
+                K = np.stack([params[u]["intrinsic_cv"][0].cpu().numpy() for u in self.uids])
+                E = np.stack([params[u]["extrinsic_cv"][0].cpu().numpy() for u in self.uids])
+            points = projection.goal2d(points, K, E, self.policy.resolution)
+        goal, hand = points.astype(np.float32)
+        return np.concatenate([goal, goal - hand]) if self.policy.goal_relative == "tcp" else goal
 
     def _tokens(self, obs, labels: dict) -> torch.Tensor:
         """This step's visual tokens (C, K, D), exactly as the policy saw them in training."""
@@ -153,7 +155,8 @@ class ClosedLoop:
         tokens = self._tokens(obs, labels)
         x = normalization.proprio_input(labels["qpos"], labels["tcp_pos"], self.policy.proprio)
         proprio = normalization.proprio(x[None], self.stats)[0]
-        return tokens, proprio, normalization.goal(self._goal(obs, labels["goal_pos"]), self.stats), labels
+        return tokens, proprio, normalization.goal(self._goal(obs, labels["goal_pos"], labels["tcp_pos"]),
+                                                     self.stats), labels
 
     @torch.inference_mode()
     def object_pose(self, tokens: torch.Tensor) -> torch.Tensor | None:

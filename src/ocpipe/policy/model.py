@@ -23,7 +23,9 @@ leave in and which cost the read-out half its precision. `readout_tcp_relative` 
 minus the TCP to its token (what the control's token holds with the true position). `visual_dropout` blanks a
 training step's standardized visual tokens (to their mean) with that chance, and `visual_head: none` leaves them out
 altogether: with 100 demos the policy can fit its actions to the slots' many dimensions instead of to the read-out's
-estimate, and then acts on the slots' imprecise object position in closed loop."""
+estimate, and then acts on the slots' imprecise object position in closed loop. `goal_relative: tcp` widens the
+goal input with the goal minus the TCP (for the 2D goal: the TCP projected into each image like the goal): how far
+the hand still has to go, which the policy otherwise has to work out from the joints."""
 
 from __future__ import annotations
 
@@ -36,6 +38,11 @@ from .settings import PolicySettings
 
 GOAL_DIMS = {"none": 0, "2d": 4, "3d": 3}
 PROPRIO_DIMS = {"joints7": 7, "qpos9_global": 9, "qpos9_grouped": 9, "joints7_tcp": 10}
+
+
+def goal_dims(policy: PolicySettings) -> int:
+    """Width of the goal input: the goal, and with `goal_relative: tcp` the goal minus the TCP beside it."""
+    return GOAL_DIMS[policy.goal] * (2 if policy.goal_relative == "tcp" else 1)
 
 
 class SequencePolicy(nn.Module):
@@ -53,7 +60,8 @@ class SequencePolicy(nn.Module):
         self.visual = HEADS[policy.visual_head](K, D, W, heads)
         self.fusion = CrossCameraFusion(W, heads) if policy.fusion == "cross_attention" else None
         self.proprio = mlp([PROPRIO_DIMS[policy.proprio], W, W, W])
-        self.goal = {"none": None, "2d": mlp([4, W, W, W]), "3d": nn.Linear(3, W)}[self.goal_kind]
+        G = goal_dims(policy)  # only the goal module in use is built: no init draws for the others
+        self.goal = mlp([G, W, W, W]) if self.goal_kind == "2d" else nn.Linear(G, W) if self.goal_kind == "3d" else None
         self.action_token = nn.Parameter(torch.zeros(W))
         readout = policy.object_readout
         self.object_readout = mlp([self.cams * K * D, 4 * W, 4 * W, STATE_DIMS]) if readout else None

@@ -57,6 +57,7 @@ class PolicySettings:
     readout_noise: float = 0.0  # std (m) of noise on the read-out's position as the policy sees it in training
     readout_tcp_relative: bool = False  # the read-out's token also holds its object position minus the TCP
     goal_norm: str = "none"  # none | zscore: standardize the goal input with training-set statistics
+    goal_relative: str = "none"  # none | tcp: the goal input also holds the goal minus the TCP (in the goal's frame)
     visual_dropout: float = 0.0  # chance that a training step's visual tokens are blanked (the read-out stays)
     val_episodes: int = 0  # last demos held out of training for the open-loop error
     name: str | None = None  # the experiment's name (config `experiments`)

@@ -31,6 +31,7 @@ from ..features.encode import PolicyTokens, check_provenance, open_features
 from ..features.probes import fit_mse
 from ..features.scenes import open_scenes
 from ..frames.store import open_store
+from ..sim import envs, projection
 from ..util.atomic import atomic_path
 from ..util.devices import pick_device
 from . import normalization
@@ -48,7 +49,10 @@ def goal_source(policy: PolicySettings | dict) -> str | None:
     return {"none": None, "3d": "goal_pos"}.get(policy.goal, f"goal2d_{policy.goal_calibration}")
 
 
-def goal_array(frames, policy: PolicySettings | dict) -> np.ndarray:
+def goal_array(frames, policy: PolicySettings | dict, camera_approx: dict | None = None) -> np.ndarray:
+    """The goal input of every frame, before goal_norm: the goal, and with `goal_relative: tcp` the goal minus the
+    TCP beside it, the TCP projected like the goal (2d: into each camera with the same calibration; the approx
+    model comes from ``camera_approx``, config `camera_approx`)."""
     policy = PolicySettings.of(policy)
     source = goal_source(policy)
     if source is None:
@@ -57,7 +61,29 @@ def goal_array(frames, policy: PolicySettings | dict) -> np.ndarray:
     if policy.goal == "2d" and not np.isfinite(goal).all():
         raise ValueError(f"{source} has NaN in {frames.store}: the camera set "
                          f"{policy.cams!r} has no {policy.goal_calibration} 2d goal (policy.goal_calibration)")
-    return goal
+    if policy.goal_relative != "tcp":
+        return goal
+    hand = frames["tcp_pos"][:].astype(np.float32)
+    if policy.goal == "2d":
+        hand = projection.goal2d(hand, *_goal_cameras(frames, policy, camera_approx), frames.attrs["resolution"])
+    return np.concatenate([goal, goal - hand], axis=1).astype(np.float32)
+
+
+def _goal_cameras(frames, policy: PolicySettings, camera_approx: dict | None) -> tuple[np.ndarray, np.ndarray]:
+    """Intrinsics and extrinsics the store's 2d goal was projected with."""
+    if policy.goal_calibration == "approx":
+        if camera_approx is None:
+            raise ValueError(f"policy {policy.name!r}: goal_relative tcp with the approx 2d goal needs config "
+                             "camera_approx")
+        return envs.approx_camera_matrices({"camera_approx": camera_approx}, list(frames.attrs["cameras"]),
+                                           frames.attrs["resolution"])
+    suffix = "_per_frame" if "cam_intrinsic_per_frame" in frames else ""  # a moving (hand) camera
+    names = ("cam_intrinsic" + suffix, "cam_extrinsic" + suffix)
+    missing = [n for n in names if n not in frames]
+    if missing:
+        raise ValueError(f"{frames.store}: frames store has no {missing}, which policy {policy.name!r} needs to "
+                         "project the TCP (goal_relative: tcp); rerun the workflow to rebuild the store")
+    return tuple(frames[n][:] for n in names)
 
 
 def split_episodes(offsets, val_episodes: int, source: str = "") -> tuple[np.ndarray, np.ndarray]:
@@ -128,13 +154,15 @@ def token_stats(tokens, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return element_stats(x.reshape(-1, x.shape[-1]))
 
 
-def load_data(policy: PolicySettings | dict, features_path, frames_path):
-    """-> (tokens array, Labels, normalization stats computed from the training frames, meta, (train, val) frames)."""
+def load_data(policy: PolicySettings | dict, features_path, frames_path, camera_approx: dict | None = None):
+    """-> (tokens array, Labels, normalization stats computed from the training frames, meta, (train, val) frames).
+    ``camera_approx`` (config `camera_approx`): only for a goal_relative policy on the approx 2d goal."""
     policy = PolicySettings.of(policy)
     goal = (goal_source(policy),) if policy.goal != "none" else ()
     reads_obj = policy.aux_object_weight > 0 or policy.object_readout
     aux = ("obj_pos",) * reads_obj + ("obj_quat",) * policy.object_readout
-    tcp = ("tcp_pos",) if policy.proprio == "joints7_tcp" or policy.readout_tcp_relative else ()
+    reads_tcp = policy.proprio == "joints7_tcp" or policy.readout_tcp_relative or policy.goal_relative == "tcp"
+    tcp = ("tcp_pos",) * reads_tcp
     feats, frames = open_features(features_path), open_store(frames_path, need=("qpos", "action", *goal, *aux, *tcp))
     check_provenance(feats, features_path, frames, frames_path)
     tokens = PolicyTokens(feats, policy.slot_geometry, str(features_path))
@@ -147,7 +175,7 @@ def load_data(policy: PolicySettings | dict, features_path, frames_path):
     offsets = frames.attrs["episode_offsets"]
     train_frames, val_frames = split_episodes(offsets, policy.val_episodes, str(frames_path))
     qpos, action = frames["qpos"][:].astype(np.float32), frames["action"][:].astype(np.float32)
-    tcp_pos = frames["tcp_pos"][:].astype(np.float32) if tcp else None
+    tcp_pos = frames["tcp_pos"][:].astype(np.float32) if reads_tcp else None
     proprio_x = normalization.proprio_input(qpos, tcp_pos, policy.proprio)
     stats = normalization.compute(proprio_x[train_frames], action[train_frames], policy.proprio)
     extra = {}
@@ -181,7 +209,7 @@ def load_data(policy: PolicySettings | dict, features_path, frames_path):
         extra["first"] = (starts, gather_tokens(tokens, starts).astype(np.float32))
     if policy.token_norm == "zscore":
         stats["token_mean"], stats["token_std"] = token_stats(tokens, train_frames)
-    goal = goal_array(frames, policy)
+    goal = goal_array(frames, policy, camera_approx)
     if policy.goal_norm == "zscore" and goal.shape[1]:
         stats["goal_mean"] = goal[train_frames].mean(0)
         stats["goal_std"] = np.maximum(goal[train_frames].std(0), normalization.EPS)
@@ -242,6 +270,7 @@ def train(
     progress: bool = True,
     on_epoch_end=None,
     scenes_path=None,
+    camera_approx: dict | None = None,
 ) -> pl.DataFrame:
     from ..config.experiments import saved_epochs
 
@@ -250,7 +279,8 @@ def train(
     out_dir = Path(out_dir)
     work = out_dir / ".train"
     device = pick_device(policy.device)
-    tokens, labels, stats, meta, (train_frames, val_frames) = load_data(policy, features_path, frames_path)
+    tokens, labels, stats, meta, (train_frames, val_frames) = load_data(policy, features_path, frames_path,
+                                                                         camera_approx)
     scenes = None
     if policy.readout_scenes:
         if scenes_path is None:
