@@ -26,10 +26,11 @@ include: "workflow/rules/evaluation.smk"
 
 
 rule spatial_grounding:
-    """The main job: Tables 5.1 and 5.2 and figures 5.1-5.3 (Pure Visual / 2D-Spatial-Proj / Explicit-3D-GT and the
+    """The main job: Tables 5.1 and 5.2, the findings they cover (1-3) and figures 5.1-5.3 (Pure Visual / 2D-Spatial-Proj / Explicit-3D-GT and the
     privileged-state control), with the diagnostics and position probes of the visual policies' features store."""
     input:
         expand(f"{paths.TABLE}.csv", table=("table5_1", "table5_2")),
+        f"{paths.TABLE_DIR}/findings_main.csv",
         expand(paths.FIGURE, figure=("fig5_1", "fig5_2", "fig5_3")),
         paths.features_diagnostics(_exp.features_store(_exp.resolve(config, "goal3d"))),
 
@@ -64,3 +65,4 @@ rule all:
         rules.spatial_grounding.input,
         rules.ablations.input,
         rules.stackcube.input,
+        f"{paths.TABLE_DIR}/findings.csv",

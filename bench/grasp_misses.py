@@ -74,8 +74,7 @@ def main() -> None:
         return out
 
     loop.model.forward = forward_recording_aux
-    seeds = jobs.seeds_for("stability", {**config["evaluation"], "stability_episodes": args.episodes},
-                           config["seed"], 0)
+    seeds = jobs.seeds_for("validation", config["evaluation"], config["seed"], run=args.episodes)
     rows = []
     try:
         for seed in seeds:

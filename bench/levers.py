@@ -5,8 +5,9 @@ simulator, so each change to the recipe is judged by the same three numbers side
 
 Each argument is an experiment of config `experiments`, optionally with `:key=value,key=value` overrides of its
 policy settings (values parsed as YAML). For each it prints the training time, the open-loop action error on
-the held-out demos (policy.val_episodes) and the closed-loop success rate on `--episodes` held-out seeds (the
-stability run 0 seeds of the protocol, so every lever sees the same episodes), and appends a row to
+the held-out demos (policy.val_episodes) and the closed-loop success rate on `--episodes` seeds of the validation
+pool (evaluation.validation_pool_size: never the seeds the tables report; every lever sees the same episodes),
+and appends a row to
 results/levers/levers.csv. Runs one lever after another on `--threads` threads; start two processes to use two
 cores."""
 
@@ -63,7 +64,7 @@ def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: in
     ckpt = out_dir / "checkpoints" / f"epoch_{policy['epochs']:04d}.pt"
     loop = closed_loop.ClosedLoop(ckpt, config, results / "frames" / f"{experiments.frames_store(policy)}.zarr",
                                   enc_ckpt)
-    seeds = jobs.seeds_for("stability", {**config["evaluation"], "stability_episodes": episodes}, config["seed"], 0)
+    seeds = jobs.seeds_for("validation", config["evaluation"], config["seed"], run=episodes)
     t0 = time.perf_counter()
     try:
         eps, steps = closed_loop.run(loop, seeds, {"exp": label, "checkpoint": policy["epochs"], "run": 0})

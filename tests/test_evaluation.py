@@ -78,21 +78,46 @@ def test_stackcube_funnel_counts_stages_in_order():
 EVAL = {
     "seed_pool_start": 10000,
     "seed_pool_size": 1000,
+    "validation_pool_size": 200,
     "sweep_episodes": 20,
+    "stability_runs": 3,
     "stability_episodes": 30,
     "failure_episodes": 200,
 }
 
 
-def test_held_out_seeds_are_deterministic_distinct_and_inside_the_pool():
+def test_table_jobs_draw_disjoint_blocks_of_the_test_pool_the_same_for_every_experiment():
     a = jobs.seeds_for("stability", EVAL, 0, run=1)
     assert a == jobs.seeds_for("stability", EVAL, 0, run=1)
-    assert a != jobs.seeds_for("stability", EVAL, 0, run=2)
-    assert a != jobs.seeds_for("stability", EVAL, 1, run=1)
-    assert len(set(a)) == 30 and min(a) >= 10000 and max(a) < 11000
-    assert len(jobs.seeds_for("sweep", EVAL, 0)) == 20
-    with pytest.raises(ValueError, match="seed_pool_size"):
-        closed_loop.sample_seeds(EVAL, 1001, 0)
+    assert a != jobs.seeds_for("stability", EVAL, 1, run=1)  # the root seed reshuffles the pool
+    draws = [jobs.seeds_for("sweep", EVAL, 0), *(jobs.seeds_for("stability", EVAL, 0, run=r) for r in range(3)),
+             jobs.seeds_for("failure_run", EVAL, 0)]
+    assert [len(d) for d in draws] == [20, 30, 30, 30, 200]
+    every = [s for d in draws for s in d]
+    assert len(set(every)) == len(every)  # pairwise disjoint
+    assert min(every) >= 10200 and max(every) < 11000  # the test pool: the validation pool's 200 seeds come first
+    with pytest.raises(ValueError, match="stability run 3"):
+        jobs.seeds_for("stability", EVAL, 0, run=3)
+
+
+def test_validation_seeds_never_meet_the_test_pool():
+    val = jobs.seeds_for("validation", EVAL, 0, run=100)
+    assert len(set(val)) == 100 and min(val) >= 10000 and max(val) < 10200
+    assert set(jobs.seeds_for("validation", EVAL, 0, run=10)) <= set(val)  # a prefix of one shuffle
+    with pytest.raises(ValueError, match="validation_pool_size is 200"):
+        jobs.seeds_for("validation", EVAL, 0, run=201)
+
+
+def test_a_test_pool_too_small_for_the_table_jobs_is_named():
+    small = {**EVAL, "seed_pool_size": 400}  # 200 validation + 200 test < 20 + 90 + 200
+    with pytest.raises(ValueError, match="draw 310 disjoint seeds but the test pool"):
+        jobs.seeds_for("sweep", small, 0)
+
+
+def test_tables_refuse_a_diagnostic_readout_filter(default_config):
+    default_config["evaluation"]["readout_filter"] = "true_pose"
+    with pytest.raises(ConfigError, match="readout_filter: 'true_pose' is a diagnostic"):
+        validate(default_config)
 
 
 def test_demo_seeds_may_not_reach_into_the_evaluation_pool(default_config):

@@ -41,7 +41,8 @@ FAILURE_RUN = RUN + "/failure_run"
 TRAIN_SEEDS = RUN + "/train_seeds"
 FAILURES = RUN + "/failures.parquet"
 
-TABLE = RESULTS + "/tables/{table}"  # .csv and .md
+TABLE = RESULTS + "/tables/{table}"  # .csv and .md (findings: TABLE_DIR/{scope})
+TABLE_DIR = RESULTS + "/tables"
 FIGURE = RESULTS + "/figures/{figure}.png"
 
 

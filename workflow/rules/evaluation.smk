@@ -1,11 +1,12 @@
 # Closed-loop evaluation (docs/study.md, Evaluation protocol): a sweep job per (experiment, checkpoint), the best
 # checkpoint, stability runs (one job each), training-seed runs, failure classification (docs/study.md, Failure
 # taxonomy), and the study's tables and figures (docs/study.md, Tables and figures).
-from ocpipe.study import registry, targets
+from ocpipe.study import findings, registry, targets
 
 
 localrules:
     best,
+    findings,
     failures,
     table,
     figure,
@@ -13,7 +14,7 @@ localrules:
 
 
 # what tables and figures read from config: their rows and the settings those rows' experiments resolve to
-TABLE_CFG = cfg("tables", "experiments", "policy", "encoders", "evaluation")
+TABLE_CFG = cfg("profile", "tables", "experiments", "policy", "encoders", "evaluation", "demos")
 
 
 # what every evaluation job reads: its policy, the protocol, and the config sections its environment and encoder
@@ -157,6 +158,31 @@ rule table:
         cfg=TABLE_CFG,
     script:
         "../scripts/table.py"
+
+
+rule findings:
+    """The study's findings judged on this build's episodes: `findings` all twelve, `findings_main` those of the main
+    job's tables (1-3)."""
+    input:
+        lambda w: targets.findings_inputs(config, w.scope),
+    output:
+        csv=report(f"{paths.TABLE_DIR}/{{scope}}.csv", category="Tables", labels={"table": "{scope}"}),
+        md=f"{paths.TABLE_DIR}/{{scope}}.md",
+    log:
+        "results/logs/tables/{scope}.log",
+    benchmark:
+        "results/benchmarks/tables/{scope}.tsv"
+    wildcard_constraints:
+        scope="|".join(findings.SCOPES),
+    conda:
+        "../envs/ocpipe.yaml"
+    threads: threads_of("light")
+    resources:
+        **resources_of("light"),
+    params:
+        cfg=TABLE_CFG,
+    script:
+        "../scripts/findings.py"
 
 
 rule figure:

@@ -6,11 +6,15 @@ from .errors import ConfigError
 
 
 def resolve(config: dict, name: str) -> dict:
-    """The full policy settings of experiment ``name`` (base policy, then its overrides)."""
+    """The full policy settings of experiment ``name`` (base policy, then its overrides); ``epoch_share`` is
+    applied to ``epochs`` here, so a checkpoint records the epochs it was trained for."""
     experiments = config["experiments"]
     if name not in experiments:
         raise ConfigError(f"experiments.{name}: no such experiment (defined: {', '.join(sorted(experiments))})")
-    return {**config["policy"], **(experiments[name] or {}), "name": name}
+    policy = {**config["policy"], **(experiments[name] or {}), "name": name}
+    share = policy.pop("epoch_share", 1.0)
+    policy["epochs"] = max(1, round(policy["epochs"] * share))
+    return policy
 
 
 def saved_epochs(policy: dict) -> list[int]:

@@ -12,6 +12,10 @@ import yaml
 from .errors import ConfigError
 from .experiments import problems as policy_problems
 from .experiments import resolve
+from .seed_pools import pool_problems
+
+# evaluation settings that measure something other than the policy: never behind a table
+DIAGNOSTIC_FILTERS = ("true_pose",)
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
 SCHEMA_PATH = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
@@ -139,12 +143,11 @@ def _cross_field_problems(config: dict) -> list[str]:
         for label, exp in rows.items():
             if exp not in config["experiments"]:
                 problems.append(f"  tables.{table}.{label}: experiment {exp!r} is not defined under experiments")
-    ev = config["evaluation"]
-    for key in ("sweep_episodes", "stability_episodes", "failure_episodes"):
-        if ev[key] > ev["seed_pool_size"]:
-            problems.append(
-                f"  evaluation.{key}: {ev[key]} episodes > evaluation.seed_pool_size {ev['seed_pool_size']}"
-            )
+    problems += pool_problems(config["evaluation"])
+    if config["evaluation"]["readout_filter"] in DIAGNOSTIC_FILTERS:
+        problems.append(f"  evaluation.readout_filter: {config['evaluation']['readout_filter']!r} is a diagnostic "
+                        "(perfect perception), not a method: the tables refuse it; bench/levers.py takes it as a "
+                        "lever override")
     problems += scene_seed_problems(config)
     problems += policy_problems(config["policy"])
     for name in config["experiments"]:

@@ -32,18 +32,6 @@ from ..util.devices import to_device
 log = logging.getLogger(__name__)
 
 
-def seed_pool(evaluation: dict) -> np.ndarray:
-    return np.arange(evaluation["seed_pool_start"], evaluation["seed_pool_start"] + evaluation["seed_pool_size"])
-
-
-def sample_seeds(evaluation: dict, n: int, *stream: int) -> list[int]:
-    """``n`` distinct held-out seeds, drawn deterministically for the random stream (root seed, purpose, run)."""
-    pool = seed_pool(evaluation)
-    if n > len(pool):
-        raise ValueError(f"{n} episodes asked for but evaluation.seed_pool_size is {len(pool)}")
-    return sorted(int(s) for s in np.random.default_rng(list(stream)).choice(pool, size=n, replace=False))
-
-
 def check_checkpoint(checkpoint, policy: PolicySettings | dict, meta: dict, frames_store, encoder_checkpoint,
                      expected: dict | None = None) -> None:
     """Refuse a policy checkpoint that does not belong with this job's inputs, before a simulator is built:
@@ -119,6 +107,11 @@ class ClosedLoop:
 
     def close(self) -> None:
         self.env.close()
+
+    def settings(self) -> dict:
+        """The evaluation settings this loop runs with, recorded in every episode row it produces."""
+        return {"episode_cap": self.cap, "execute_actions": self.execute, "temporal_ensemble": float(self.ensemble),
+                "readout_filter": self.readout_filter, "trivial_steps": self.trivial_steps}
 
     def _goal(self, obs, goal_pos: np.ndarray, tcp_pos: np.ndarray) -> np.ndarray:
         """The goal input as training.goal_array builds it from the frames store (before goal_norm)."""
@@ -270,7 +263,7 @@ def run(loop: ClosedLoop, seeds: list[int], ids: dict, progress: bool = True) ->
     bar = tqdm(seeds, desc=f"eval {ids}", unit="episode", disable=not progress)
     for seed in bar:
         row, steps = loop.episode(seed)
-        rows.append({**ids, **row})
+        rows.append({**ids, **loop.settings(), **row})
         step_frames.append(pl.DataFrame({**{k: [v] * len(steps["step"]) for k, v in ids.items()},
                                          "seed": [seed] * len(steps["step"]), **steps}))
         sr = np.mean([r["success"] and not r["trivial"] for r in rows])

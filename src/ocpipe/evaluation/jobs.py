@@ -9,12 +9,42 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
+from ..config.seed_pools import pool_problems, pools, table_blocks
 from ..frames.store import open_store
 from ..util.atomic import atomic_path, write_json
 from . import closed_loop
 
-# random streams for sample_seeds: (root seed, purpose[, run])
-SWEEP, STABILITY, FAILURE_RUN, TRAIN_SEEDS = 0, 1, 2, 3
+# random streams: (root seed, purpose)
+TEST_POOL, VALIDATION_POOL, TRAIN_SEEDS = 1, 4, 3
+TEST_KINDS = ("sweep", "stability", "failure_run")  # each draws its own block of the test pool
+
+
+def seeds_for(kind: str, evaluation_cfg: dict, seed: int, run: int = 0,
+              episode_seeds: list[int] | None = None) -> list[int]:
+    """A job's seeds. Table jobs (sweep, stability run ``run``, failure run) take pairwise disjoint blocks of one
+    shuffle of the test pool, the same for every experiment (rows are compared on the same episodes);
+    'train_seeds' are demo seeds (Table 5.6), 'validation' the first episodes of a shuffle of the validation pool
+    (``run`` of them), for everything that chooses a setting."""
+    if kind == "train_seeds":
+        return training_seeds(evaluation_cfg, episode_seeds or [], seed)
+    validation, test = pools(evaluation_cfg)
+    if kind == "validation":
+        if run > len(validation):
+            raise ValueError(f"{run} validation episodes asked for but evaluation.validation_pool_size is "
+                             f"{len(validation)}")
+        return sorted(int(s) for s in np.random.default_rng([seed, VALIDATION_POOL]).permutation(validation)[:run])
+    if kind not in TEST_KINDS:
+        raise ValueError(f"unknown evaluation kind {kind!r}")
+    problems = pool_problems(evaluation_cfg)
+    if problems:
+        raise ValueError(problems[0].strip())
+    start = 0
+    for block, n in table_blocks(evaluation_cfg).items():
+        if block == (kind, run if kind == "stability" else 0):
+            shuffled = np.random.default_rng([seed, TEST_POOL]).permutation(test)
+            return sorted(int(s) for s in shuffled[start:start + n])
+        start += n
+    raise ValueError(f"stability run {run}: evaluation.stability_runs is {evaluation_cfg['stability_runs']}")
 
 
 def training_seeds(evaluation_cfg: dict, episode_seeds: list[int], seed: int) -> list[int]:
@@ -22,19 +52,6 @@ def training_seeds(evaluation_cfg: dict, episode_seeds: list[int], seed: int) ->
     n = min(evaluation_cfg["stability_episodes"], len(episode_seeds))
     rng = np.random.default_rng([seed, TRAIN_SEEDS])
     return sorted(int(s) for s in rng.choice(np.asarray(episode_seeds), size=n, replace=False))
-
-
-def seeds_for(kind: str, evaluation_cfg: dict, seed: int, run: int = 0,
-              episode_seeds: list[int] | None = None) -> list[int]:
-    if kind == "sweep":  # every checkpoint and experiment sees the same episodes: comparisons are paired
-        return closed_loop.sample_seeds(evaluation_cfg, evaluation_cfg["sweep_episodes"], seed, SWEEP)
-    if kind == "stability":
-        return closed_loop.sample_seeds(evaluation_cfg, evaluation_cfg["stability_episodes"], seed, STABILITY, run)
-    if kind == "failure_run":
-        return closed_loop.sample_seeds(evaluation_cfg, evaluation_cfg["failure_episodes"], seed, FAILURE_RUN)
-    if kind == "train_seeds":
-        return training_seeds(evaluation_cfg, episode_seeds or [], seed)
-    raise ValueError(f"unknown evaluation kind {kind!r}")
 
 
 OPEN_LOOP_COLUMNS = ("val_joint_err_rad", "val_first_joint_err_rad", "val_gripper_agree")
@@ -87,7 +104,9 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
     try:
         episode_seeds = list(open_store(frames).attrs["episode_seeds"]) if kind == "train_seeds" else None
         seeds = seeds_for(kind, config["evaluation"], seed, run, episode_seeds)
-        episodes, steps = closed_loop.run(loop, seeds, {"exp": exp, "checkpoint": epoch, "run": run}, progress)
+        ids = {"exp": exp, "checkpoint": epoch, "run": run, "kind": kind,
+               "seed_pool": "demos" if kind == "train_seeds" else "test"}
+        episodes, steps = closed_loop.run(loop, seeds, ids, progress)
     finally:
         loop.close()
     with atomic_path(out_steps) as tmp:

@@ -9,7 +9,7 @@ a table, reading its own needs."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from . import figures, tables
 
@@ -20,6 +20,17 @@ class Table:
     needs: tuple[str, ...]
     columns: Callable[[tables.Row], dict] | None = None  # None: a failure distribution
     always_classes: tuple[str, ...] = ()  # failure distributions: classes shown even when no episode has them
+    varies: tuple[str, ...] = ()  # the policy settings the study varied between this table's rows; nothing else may
+    fixed: str = ""  # what the study held fixed across the rows, in words (written under the table)
+    # experiment -> further settings that one row may differ in, each with the study's reason
+    allowed: dict[str, tuple[str, ...]] = field(default_factory=dict)
+
+
+# the privileged-state control reads the object's true pose instead of rendered tokens: no camera, no read-out
+CONTROL = {"state_control": ("goal", "encoder", "cameras", "object_readout", "readout_scenes")}
+# dense DINO fits in memory only this way (the study's own exception, a column of its Table 5.4)
+DENSE = {"dino_dense": ("window", "horizon", "batch_size", "object_readout", "readout_scenes")}
+SPATIAL = "encoder, cameras (base + side) and resolution 128 px, T, H, demos and training"
 
 
 @dataclass(frozen=True)
@@ -31,23 +42,35 @@ class Figure:
 
 TABLES = {
     "table5_1": Table("Table 5.1: spatial grounding (held-out SR, mean episode length)", ("stability",),
-                      tables.stability_columns),
-    "table5_2": Table("Table 5.2: failure distribution", ("failures",)),
-    "table5_3": Table("Table 5.3: goal calibration x resolution", ("stability",), tables.calibration_columns),
-    "table5_4": Table("Table 5.4: visual representations", ("stability", "train_log"), tables.representation_columns),
+                      tables.stability_columns, varies=("goal",), fixed=SPATIAL, allowed=CONTROL),
+    "table5_2": Table("Table 5.2: failure distribution", ("failures",), varies=("goal",), fixed=SPATIAL,
+                      allowed=CONTROL),
+    "table5_3": Table("Table 5.3: goal calibration x resolution", ("stability",), tables.calibration_columns,
+                      varies=("goal_calibration", "resolution"), fixed="encoder, both cameras, 2D goal, T, H"),
+    "table5_4": Table("Table 5.4: visual representations", ("stability", "train_log"), tables.representation_columns,
+                      varies=("encoder",), fixed="both cameras at 128 px, approximate calibration, 2D goal, the policy",
+                      allowed=DENSE),
     "table5_5": Table("Table 5.5: single-camera slot heads (base camera, no goal)", ("stability", "checkpoints"),
-                      tables.head_columns),
+                      tables.head_columns, varies=("visual_head",),
+                      fixed="slot encoder, base camera only (7 slots), no goal, 7-DoF proprioception"),
     "table5_6": Table("Table 5.6: multi-view fusion, generalization gap (training-seed SR vs held-out SR)",
-                      ("stability", "train_seeds"), tables.generalization_columns),
+                      ("stability", "train_seeds"), tables.generalization_columns, varies=("fusion",),
+                      fixed="slot encoder, both cameras, no goal"),
     "table5_7": Table("Table 5.7: temporal window T", ("stability", "train_log", "best", "checkpoints"),
-                      tables.window_columns),
+                      tables.window_columns, varies=("window", "epochs"),
+                      fixed="slot encoder, both cameras, no goal, one training budget per row (epochs in the "
+                            "study's 680 : 300 : 150 proportion)"),
     "table5_8": Table("Table 5.8: proprioception and normalization", ("stability",),
-                      tables.setting_columns("Proprio", "proprio")),
+                      tables.setting_columns("Proprio", "proprio"), varies=("proprio",),
+                      fixed="slot encoder, both cameras, no goal"),
     "table5_9": Table("Table 5.9: loss weighting by episode progress", ("stability",),
-                      tables.setting_columns("Loss weighting", "loss_weighting")),
+                      tables.setting_columns("Loss weighting", "loss_weighting"), varies=("loss_weighting",),
+                      fixed="slot encoder, both cameras at 128 px, approximate calibration, 2D goal"),
     "table5_10": Table("Table 5.10: StackCube, native (base + hand camera, no goal) vs aligned (base + side, 2D goal)",
-                       ("stability",), tables.stability_columns),
-    "table5_11": Table("Table 5.11: StackCube failure distribution", ("failures",), always_classes=("Grasp No Stack",)),
+                       ("stability",), tables.stability_columns, varies=("cams", "goal"),
+                       fixed="StackCube, slot encoder, T, H, demos"),
+    "table5_11": Table("Table 5.11: StackCube failure distribution (aligned)", ("failures",),
+                       always_classes=("Grasp No Stack",), fixed="StackCube aligned (base + side, 2D goal)"),
 }
 
 

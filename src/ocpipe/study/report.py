@@ -11,7 +11,7 @@ from ..config.experiments import resolve
 from ..encoders.registry import tokens_per_camera
 from ..evaluation import taxonomy
 from ..util.atomic import atomic_path
-from . import figures, tables, targets
+from . import conditions, figures, findings, stats, tables, targets
 from .registry import FIGURES, SPATIAL_FIGURES_NEEDS, TABLES
 
 
@@ -32,17 +32,17 @@ def classify_episodes(episode_files, task: str, rules: dict, out_path) -> pl.Dat
     return classes
 
 
-def _markdown(table: pl.DataFrame, title: str) -> str:
+def markdown(table: pl.DataFrame, title: str, footer: str = "") -> str:
     fmt = lambda v: f"{v:.3f}" if isinstance(v, float) else "—" if v is None else str(v)  # noqa: E731
     lines = [f"**{title}**", "", "| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
     lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in table.iter_rows()]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + ([f"\n{footer}"] if footer else [])) + "\n"
 
 
-def _write(table: pl.DataFrame, csv_path, md_path, title: str) -> pl.DataFrame:
+def write(table: pl.DataFrame, csv_path, md_path, title: str, footer: str = "") -> pl.DataFrame:
     tables.write_csv(table, csv_path)
     with atomic_path(md_path) as tmp:
-        tmp.write_text(_markdown(table, title))
+        tmp.write_text(markdown(table, title, footer))
     return table
 
 
@@ -85,7 +85,22 @@ def write_table(config: dict, table: str, csv_path, md_path, runs_dir="results/r
         frame = tables.table5_2({r.label: r.data["failures"] for r in rows if r.status is None}, spec.always_classes)
     else:
         frame = tables.build(spec.columns, rows)
-    return _write(frame, csv_path, md_path, spec.title)
+    return write(frame, csv_path, md_path, spec.title, conditions.footer(config, table))
+
+
+def write_findings(config: dict, scope: str, csv_path, md_path, runs_dir="results/runs") -> pl.DataFrame:
+    """The findings of ``scope`` (findings.SCOPES), each judged on the episode files its table reads."""
+    out = []
+    for fid in findings.SCOPES[scope]:
+        finding = findings.BY_ID[fid]
+        rows = {r.label: r for r in table_rows(config, finding.table, finding.needs, runs_dir)}
+        out.append(findings.judge(finding, rows))
+    frame = pl.DataFrame(out, infer_schema_length=None)
+    note = (f"Profile {config.get('profile', '?')}. p: the largest p-value of the finding's order claims (SR: "
+            f"Fisher's exact test on success counts pooled over the stability runs; lengths and rewards: Mann-Whitney "
+            f"U; shares: Fisher or binomial); reproduced = every order resolved at p < {stats.ALPHA} and no 'equal' or "
+            "'at most' claim resolved against.")
+    return write(frame, csv_path, md_path, "Findings of the study, judged on this build", note)
 
 
 def write_figure(config: dict, figure: str, out_png, runs_dir="results/runs") -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from .. import paths
 from ..config.experiments import missing_weights, resolve, saved_epochs
+from .findings import BY_ID, SCOPES
 from .registry import TABLES
 
 
@@ -56,4 +57,13 @@ def experiments_of(config: dict, tables=None) -> list[str]:
     for table in tables or config["tables"]:
         skip = unavailable(config, table)
         out += [e for label, e in rows(config, table).items() if label not in skip and e not in out]
+    return out
+
+
+def findings_inputs(config: dict, scope: str) -> list[str]:
+    """Every episode file the findings of ``scope`` read, for the rows that can run."""
+    out = []
+    for fid in SCOPES[scope]:
+        f = BY_ID[fid]
+        out += [p for p in inputs(config, f.table, f.needs) if p not in out]
     return out

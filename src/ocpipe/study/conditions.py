@@ -1,0 +1,84 @@
+"""Like for like: what a table's rows may differ in, and where a profile's recipe departs from the study's.
+
+The study compared policies "identical except for" the variable each table studies. ``unlike_rows`` names every
+setting in which two rows of a table differ beyond that variable (the registry's ``varies``, plus the settings a
+named row may differ in, with the study's reason: the privileged-state control, dense DINO). ``footer`` is the
+line under every table: the profile, what the study held fixed and varied, and where this profile's recipe
+departs from the study's, the same for every row (or said per row where it is not)."""
+
+from __future__ import annotations
+
+from ..config.experiments import resolve
+from .registry import TABLES
+
+# The study's recipe, for the settings this pipeline can change (the study's sizes are config/thesis.yaml's)
+STUDY_POLICY = {
+    "token_norm": "none", "slot_geometry": False, "aux_object_weight": 0.0, "proprio_noise": 0.0,
+    "joint_targets": "absolute", "lr_schedule": "constant", "first_frame": False, "object_readout": False,
+    "readout_scenes": False, "visual_dropout": 0.0, "goal_norm": "none", "goal_relative": "none",
+    "readout_noise": 0.0, "readout_tcp_relative": False, "visual_head": "tokens", "action_head": "linear",
+    "gripper": "regression", "width": 256, "layers": 8, "heads": 8, "lr": 0.0001,
+}
+STUDY_EVALUATION = {"execute_actions": 5, "temporal_ensemble": 0.0, "readout_filter": "none",
+                    "episode_cap": {"PickCube-v1": 300, "StackCube-v1": 300}}
+STUDY_DEMOS = 1000
+# settings that only mean something with the object read-out on: named only where it is
+READOUT_DETAILS = ("readout_standardize", "readout_yaw_weight")
+IGNORED = {"name", "device"}  # where a row runs is not what it is
+
+
+def row_settings(config: dict, table: str) -> dict[str, dict]:
+    """Row label -> the experiment's resolved policy settings."""
+    return {label: resolve(config, exp) for label, exp in config["tables"][table].items()}
+
+
+def unlike_rows(config: dict, table: str) -> list[str]:
+    """Every setting two rows of ``table`` differ in that the study did not vary there, as 'label vs label: key'."""
+    spec, rows = TABLES[table], config["tables"][table]
+    settings = row_settings(config, table)
+    labels = list(settings)
+    out = []
+    for i, a in enumerate(labels):
+        for b in labels[i + 1:]:
+            free = set(spec.varies) | IGNORED
+            free |= set(spec.allowed.get(rows[a], ())) | set(spec.allowed.get(rows[b], ()))
+            keys = sorted(k for k in settings[a].keys() | settings[b].keys()
+                          if k not in free and settings[a].get(k) != settings[b].get(k))
+            out += [f"{table}: {a!r} vs {b!r}: {k} {settings[a].get(k)!r} vs {settings[b].get(k)!r}" for k in keys]
+    return out
+
+
+def departures(config: dict, table: str) -> list[str]:
+    """Where the rows' recipe departs from the study's: 'key value' when every row agrees, else per row."""
+    settings = row_settings(config, table)
+    out = []
+    for key, study in STUDY_POLICY.items():
+        values = {label: s[key] for label, s in settings.items() if key in s}
+        off = {label: v for label, v in values.items() if v != study}
+        if not off:
+            continue
+        shown = {repr(v): v for v in off.values()}
+        if len(shown) > 1:
+            out.append(f"{key} " + ", ".join(f"{v} ({label})" for label, v in off.items()))
+        else:
+            others = [label for label in values if label not in off]
+            out.append(f"{key} {next(iter(shown.values()))}" + (f" (not {', '.join(others)})" if others else ""))
+        if key == "object_readout":
+            agreed = [k for k in READOUT_DETAILS if len({repr(s.get(k)) for s in settings.values()}) == 1]
+            out += [f"{k} {next(iter(settings.values()))[k]}" for k in agreed]
+    ev = config["evaluation"]
+    out += [f"evaluation.{k} {ev[k]}" for k, v in STUDY_EVALUATION.items() if ev.get(k, v) != v]
+    demos = config.get("demos", {}).get("num_demos", STUDY_DEMOS)
+    return out + ([f"demos.num_demos {demos}"] if demos != STUDY_DEMOS else [])
+
+
+def footer(config: dict, table: str) -> str:
+    spec = TABLES[table]
+    varies = ", ".join(spec.varies) or "nothing (one row)"
+    dep = departures(config, table)
+    text = (f"Profile {config.get('profile', '?')}. Rows differ only in: {varies}"
+            + (f" (and {', '.join(spec.allowed)} in what it needs to run)" if spec.allowed else "")
+            + (f"; the study held fixed: {spec.fixed}" if spec.fixed else "") + ". "
+            + ("Departures from the study's recipe, the same for every row unless named: " + "; ".join(dep)
+               if dep else "No departure from the study's recipe") + ".")
+    return text

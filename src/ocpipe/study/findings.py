@@ -1,0 +1,188 @@
+"""The study's twelve findings, each judged on this build's episode files: the study's figures, this build's (with
+episode counts), the test, its p-value and a verdict (``stats.verdict``), or 'not run' naming what is missing.
+
+Nothing here is typed in but the study's own figures: every figure of this build is computed from the
+evaluation files under results/runs/ that the tables read."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import polars as pl
+
+from ..evaluation import taxonomy
+from . import stats
+from .tables import Row
+
+PURE, G2D, G3D = "Pure Visual", "2D-Spatial-Proj", "Explicit-3D-GT"
+
+
+@dataclass(frozen=True)
+class Finding:
+    id: int
+    table: str
+    claim: str
+    study: str  # the study's figures
+    rows: tuple[str, ...]  # the table's row labels it compares
+    needs: tuple[str, ...]
+    judge: Callable[[dict[str, Row]], list[stats.Check]]
+
+
+def _sr(rows, label):
+    return stats.successes(rows[label].data["stability"])
+
+
+def _lengths(rows, label):
+    eps = rows[label].data["stability"].filter(~pl.col("trivial"))
+    return eps["steps"].to_list()
+
+
+def _class_count(rows, label, cls):
+    """(episodes of class ``cls``, classified non-trivial episodes) of a row's failure run."""
+    c = taxonomy.counts(rows[label].data["failures"])
+    return c[cls], sum(c.values())
+
+
+def _failures_of(rows, label, cls):
+    """(episodes of class ``cls``, failed non-trivial episodes)."""
+    c = taxonomy.counts(rows[label].data["failures"])
+    return c[cls], sum(c.values()) - c["Success"]
+
+
+def _peak_returns(rows, label):
+    """The sweep's episode returns at the best checkpoint (Table 5.7's 'reward at peak')."""
+    best = rows[label].data["best"]["epoch"]
+    return rows[label].data["sweep"].filter(pl.col("checkpoint") == best)["return"].to_list()
+
+
+def _train_seed_sr(rows, label):
+    return stats.successes(rows[label].data["train_seeds"])
+
+
+def _f1(r):
+    return [stats.rate_less(PURE, _sr(r, PURE), G2D, _sr(r, G2D)), stats.rate_less(G2D, _sr(r, G2D), G3D, _sr(r, G3D))]
+
+
+def _f2(r):
+    return [stats.values_greater(PURE, _lengths(r, PURE), G2D, _lengths(r, G2D), "length"),
+            stats.values_greater(G2D, _lengths(r, G2D), G3D, _lengths(r, G3D), "length")]
+
+
+def _f3(r):
+    return [stats.rate_less(G3D, _class_count(r, G3D, "Near Miss"), PURE, _class_count(r, PURE, "Near Miss"),
+                            "Near Miss share"),
+            stats.rate_equal(PURE, _class_count(r, PURE, "No Grasp"), G3D, _class_count(r, G3D, "No Grasp"),
+                             "No Grasp share")]
+
+
+def _f4(r):
+    a, e128, e224 = "approx-128", "exact-128", "exact-224"
+    return [stats.rate_less(a, _sr(r, a), e128, _sr(r, e128), strict=False),
+            stats.rate_less(e128, _sr(r, e128), e224, _sr(r, e224))]
+
+
+def _f5(r):
+    # SPOT where its weights are given, else the offline slot encoder
+    slots = "SPOT 14 slots" if r.get("SPOT 14 slots") and r["SPOT 14 slots"].status is None \
+        else "slots_ssl 14 slots (offline)"
+    return [stats.rate_less("DINO CLS", _sr(r, "DINO CLS"), slots, _sr(r, slots)),
+            stats.rate_less("DINO 4x4", _sr(r, "DINO 4x4"), slots, _sr(r, slots)),
+            stats.rate_at_most("DINO 14x14 dense", _sr(r, "DINO 14x14 dense"), 0.05)]
+
+
+def _f6(r):
+    st = "Slot Transformer"
+    return [stats.rate_less(other, _sr(r, other), st, _sr(r, st), strict=False) for other in r if other != st]
+
+
+def _f7(r):
+    cat, xat = "Concatenation", "Cross-attention"
+    return [stats.rate_less(cat, _train_seed_sr(r, cat), xat, _train_seed_sr(r, xat), "training-seed SR"),
+            stats.rate_equal(cat, _sr(r, cat), xat, _sr(r, xat), "held-out SR")]
+
+
+def _f8(r):
+    t5, t20, t40 = "T=5", "T=20", "T=40"
+    return [stats.rate_equal(t5, _sr(r, t5), t20, _sr(r, t20)), stats.rate_equal(t5, _sr(r, t5), t40, _sr(r, t40)),
+            stats.values_greater(t5, _peak_returns(r, t5), t20, _peak_returns(r, t20), "reward at peak"),
+            stats.values_greater(t20, _peak_returns(r, t20), t40, _peak_returns(r, t40), "reward at peak")]
+
+
+def _f9(r):
+    dof7, glob, grouped = "7-DoF", "9-DoF global z-score", "9-DoF grouped z-score"
+    return [stats.rate_less(glob, _sr(r, glob), dof7, _sr(r, dof7)), stats.rate_at_most(glob, _sr(r, glob), 0.05),
+            stats.rate_less(grouped, _sr(r, grouped), dof7, _sr(r, dof7))]
+
+
+def _f10(r):
+    return [stats.rate_less(w, _sr(r, w), "Uniform", _sr(r, "Uniform"), strict=False) for w in r if w != "Uniform"]
+
+
+def _f11(r):
+    native, aligned = "Native (base + hand, no goal)", "Aligned (base + side, 2D goal)"
+    return [stats.rate_less(native, _sr(r, native), aligned, _sr(r, aligned))]
+
+
+def _f12(r):
+    aligned = "Aligned (base + side, 2D goal)"
+    return [stats.rate_above(aligned, _failures_of(r, aligned, "No Grasp"), 0.5, "No Grasp share of failures")]
+
+
+FINDINGS = (
+    Finding(1, "table5_1", "SR: Pure Visual < 2D < 3D", "31.0 / 55.0 / 71.7 %", (PURE, G2D, G3D), ("stability",), _f1),
+    Finding(2, "table5_1", "episode length: Pure Visual > 2D > 3D", "313 / 247 / 182 steps", (PURE, G2D, G3D),
+            ("stability",), _f2),
+    Finding(3, "table5_2", "Near Miss share falls from Pure Visual to 3D; No Grasp about the same",
+            "Near Miss 31.0 / 21.0 / 2.5 %; No Grasp 7.5 / 7.5 / 12.0 %", (PURE, G3D), ("failures",), _f3),
+    Finding(4, "table5_3", "SR: approx-128 <= exact-128 < exact-224", "55.0 / 58.7 / 68.7 %",
+            ("approx-128", "exact-128", "exact-224"), ("stability",), _f4),
+    Finding(5, "table5_4", "slots above DINO CLS and DINO 4x4; dense DINO near zero",
+            "SPOT 55.0; CLS 32.6; 4x4 31.7; dense 1.0 % (peak)",
+            ("DINO CLS", "DINO 4x4", "DINO 14x14 dense", "slots_ssl 14 slots (offline)"), ("stability",), _f5),
+    Finding(6, "table5_5", "Slot Transformer at least as good as the other heads (qualitative)",
+            "13.3 against 10.0 / 6.7 / 10.0 % (30 episodes)", (), ("stability",), _f6),
+    Finding(7, "table5_6", "cross-attention fits the training seeds better than concatenation, both equal held out "
+            "(so its gap is larger)", "training seeds 60.0 vs 38.6 %; held out 31.0 vs 31.0 %",
+            ("Concatenation", "Cross-attention"), ("stability", "train_seeds"), _f7),
+    Finding(8, "table5_7", "one training budget: SR does not change with T; reward at peak falls as T grows",
+            "SR 6.7 / 6.7 / 6.7 %; reward at peak 70 / 45 / 36", ("T=5", "T=20", "T=40"),
+            ("stability", "best", "sweep"), _f8),
+    Finding(9, "table5_8", "9-DoF with global z-score fails (gripper stuck closed); grouped below 7-DoF",
+            "0.0 / 6.7 / 31.0 %", ("7-DoF", "9-DoF global z-score", "9-DoF grouped z-score"), ("stability",), _f9),
+    Finding(10, "table5_9", "every loss weighting at or below uniform",
+            "uniform 55.0; time 38.9; U-shaped 34.8; dim-decoupled 49.8 %", (), ("stability",), _f10),
+    Finding(11, "table5_10", "StackCube: aligned above native", "native 1.5 %; aligned 5.3 %",
+            ("Native (base + hand, no goal)", "Aligned (base + side, 2D goal)"), ("stability",), _f11),
+    Finding(12, "table5_11", "StackCube failures are mostly No Grasp", "No Grasp 72.0 %, Near Miss 10.0 %",
+            ("Aligned (base + side, 2D goal)",), ("failures",), _f12),
+)
+BY_ID = {f.id: f for f in FINDINGS}
+# the findings a target reports: the main job's tables cover findings 1-3
+SCOPES = {"findings": tuple(BY_ID), "findings_main": (1, 2, 3)}
+
+
+def not_run(finding: Finding, rows: dict[str, Row]) -> str | None:
+    """Why a finding cannot be judged (a row missing from config, or one that needs weights), or None."""
+    missing = [label for label in finding.rows if label not in rows]
+    if missing:
+        return f"not run: {finding.table} has no row {', '.join(map(repr, missing))}"
+    blocked = {label: row.status for label, row in rows.items()
+               if row.status and (label in finding.rows or not finding.rows)}
+    if blocked:
+        return "not run: " + "; ".join(f"{label} {why}" for label, why in blocked.items())
+    return None
+
+
+def judge(finding: Finding, rows: dict[str, Row]) -> dict:
+    """One line of the findings table."""
+    base = {"Finding": finding.id, "Table": finding.table.replace("table", "").replace("_", "."),
+            "Claim": finding.claim, "Study": finding.study}
+    reason = not_run(finding, rows)
+    if reason:
+        return {**base, "This build": None, "Test": None, "p": None, "Verdict": reason}
+    checks = finding.judge(rows)
+    p = [c.p for c in checks if c.directional and c.p is not None]
+    return {**base, "This build": "; ".join(c.text for c in checks),
+            "Test": "; ".join(f"{c.test} p={c.p:.3g}" if c.p is not None else c.test for c in checks),
+            "p": max(p) if p else None, "Verdict": stats.verdict(checks)}

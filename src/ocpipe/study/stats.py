@@ -1,0 +1,117 @@
+"""Claims about two rows of a table, judged on their episodes: is the claimed order there, and can the episodes
+resolve it? Each check gives the figures it compared, the test, its p-value and an outcome:
+
+  holds       the claim holds and is resolved (p < ALPHA), or, for 'equal' and 'at most' claims, is not violated
+  unresolved  the claimed direction is seen but p >= ALPHA
+  opposite    the opposite direction is seen, not resolved
+  violated    the opposite direction is resolved, or an 'equal' claim is resolved apart"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import polars as pl
+from scipy import stats
+
+ALPHA = 0.05
+
+
+@dataclass(frozen=True)
+class Check:
+    text: str  # what was compared, with its figures
+    test: str
+    p: float | None
+    outcome: str  # holds | unresolved | opposite | violated
+    directional: bool = True  # a strict order the episodes must resolve (not an 'equal' or 'at most' claim)
+
+
+def successes(episodes: pl.DataFrame) -> tuple[int, int]:
+    """(non-trivial successes, non-trivial episodes) over every run in ``episodes``."""
+    kept = episodes.filter(~pl.col("trivial"))
+    return int(kept["success"].sum()), len(kept)
+
+
+def _rate(kn: tuple[int, int]) -> str:
+    k, n = kn
+    return f"{k}/{n} ({100 * k / n:.1f} %)" if n else f"{k}/0"
+
+
+def _fisher(a: tuple[int, int], b: tuple[int, int], alternative: str) -> float:
+    table = [[a[0], a[1] - a[0]], [b[0], b[1] - b[0]]]
+    return float(stats.fisher_exact(table, alternative=alternative).pvalue)
+
+
+def _order(p_claimed: float, p_opposite: float, claimed_seen: bool, strict: bool) -> str:
+    if p_opposite < ALPHA:
+        return "violated"
+    if not strict:
+        return "holds"
+    if p_claimed < ALPHA:
+        return "holds"
+    return "unresolved" if claimed_seen else "opposite"
+
+
+def rate_less(a: str, ka: tuple[int, int], b: str, kb: tuple[int, int], what: str = "SR",
+              strict: bool = True) -> Check:
+    """Claim: ``a``'s rate < ``b``'s (``strict``), or at most ``b``'s. Fisher's exact test, one-sided."""
+    if not ka[1] or not kb[1]:
+        return Check(f"{what} {a} vs {b}: no episodes", "Fisher exact, one-sided", None, "unresolved")
+    p_less, p_greater = _fisher(ka, kb, "less"), _fisher(ka, kb, "greater")
+    seen = ka[0] / ka[1] < kb[0] / kb[1] if strict else ka[0] / ka[1] <= kb[0] / kb[1]
+    sign = "<" if strict else "<="
+    return Check(f"{what} {a} {_rate(ka)} {sign} {b} {_rate(kb)}", "Fisher exact, one-sided",
+                 p_less if strict else p_greater, _order(p_less, p_greater, seen, strict), strict)
+
+
+def rate_equal(a: str, ka: tuple[int, int], b: str, kb: tuple[int, int], what: str = "SR") -> Check:
+    """Claim: the two rates are about the same. Violated when Fisher's two-sided test resolves them apart."""
+    if not ka[1] or not kb[1]:
+        return Check(f"{what} {a} vs {b}: no episodes", "Fisher exact, two-sided", None, "unresolved", False)
+    p = _fisher(ka, kb, "two-sided")
+    return Check(f"{what} {a} {_rate(ka)} ~ {b} {_rate(kb)}", "Fisher exact, two-sided", p,
+                 "violated" if p < ALPHA else "holds", False)
+
+
+def rate_at_most(a: str, ka: tuple[int, int], share: float, what: str = "SR") -> Check:
+    """Claim: ``a``'s rate is at most ``share`` (e.g. 'near zero'). Violated when a one-sided binomial test
+    resolves it above."""
+    if not ka[1]:
+        return Check(f"{what} {a}: no episodes", "binomial, one-sided", None, "unresolved", False)
+    p = float(stats.binomtest(ka[0], ka[1], share, alternative="greater").pvalue)
+    return Check(f"{what} {a} {_rate(ka)} <= {100 * share:.0f} %", "binomial, one-sided", p,
+                 "violated" if p < ALPHA else "holds", False)
+
+
+def rate_above(a: str, ka: tuple[int, int], share: float, what: str) -> Check:
+    """Claim: ``a``'s rate is above ``share`` (e.g. 'most'). One-sided binomial test."""
+    if not ka[1]:
+        return Check(f"{what} {a}: no episodes", "binomial, one-sided", None, "unresolved")
+    k, n = ka
+    p_greater = float(stats.binomtest(k, n, share, alternative="greater").pvalue)
+    p_less = float(stats.binomtest(k, n, share, alternative="less").pvalue)
+    return Check(f"{what} {a} {_rate(ka)} > {100 * share:.0f} %", "binomial, one-sided", p_greater,
+                 _order(p_greater, p_less, k / n > share, True))
+
+
+def values_greater(a: str, va, b: str, vb, what: str) -> Check:
+    """Claim: ``a``'s values are larger than ``b``'s (e.g. episode lengths). Mann-Whitney U, one-sided."""
+    va, vb = np.asarray(va, float), np.asarray(vb, float)
+    if not len(va) or not len(vb):
+        return Check(f"{what} {a} vs {b}: no episodes", "Mann-Whitney U, one-sided", None, "unresolved")
+    p_greater = float(stats.mannwhitneyu(va, vb, alternative="greater").pvalue)
+    p_less = float(stats.mannwhitneyu(va, vb, alternative="less").pvalue)
+    return Check(f"{what} {a} {va.mean():.1f} (n={len(va)}) > {b} {vb.mean():.1f} (n={len(vb)})",
+                 "Mann-Whitney U, one-sided", p_greater, _order(p_greater, p_less, va.mean() > vb.mean(), True))
+
+
+def verdict(checks: list[Check]) -> str:
+    """One finding's verdict from its checks."""
+    outcomes = {c.outcome for c in checks}
+    if "violated" in outcomes:
+        return "not reproduced"
+    if "opposite" in outcomes:
+        return "opposite direction, not resolved"
+    if "unresolved" in outcomes:
+        return "same direction, not resolved"
+    return "reproduced"

@@ -1,0 +1,83 @@
+"""Like for like: every table's rows differ only in what the study varied there, in both profiles; shared rows are
+one experiment; each table's Markdown names the profile and its departures from the study's recipe."""
+
+import polars as pl
+import pytest
+from conftest import REPO
+
+from ocpipe.config import validate as cfgmod
+from ocpipe.config.experiments import resolve
+from ocpipe.study import conditions, registry, report
+
+PROFILES = {"default": [REPO / "config" / "config.yaml"],
+            "full": [REPO / "config" / "config.yaml", REPO / "config" / "thesis.yaml"]}
+
+
+@pytest.fixture(params=list(PROFILES))
+def profile(request):
+    return cfgmod.load(*PROFILES[request.param])
+
+
+def test_rows_of_every_table_differ_only_in_what_the_study_varied(profile):
+    problems = [p for table in registry.TABLES for p in conditions.unlike_rows(profile, table)]
+    assert problems == []
+
+
+def test_a_row_that_differs_in_something_else_is_named(default_config):
+    default_config["experiments"]["weight_time"]["goal_norm"] = "none"
+    problems = conditions.unlike_rows(default_config, "table5_9")
+    assert problems and all("goal_norm 'zscore' vs 'none'" in p or "goal_norm 'none' vs 'zscore'" in p
+                            for p in problems)
+    assert len(problems) == 3  # weight_time against each of the other three rows
+
+
+def test_the_control_may_differ_only_in_what_reading_the_true_pose_needs(default_config):
+    assert conditions.unlike_rows(default_config, "table5_1") == []
+    default_config["experiments"]["state_control"]["window"] = 3
+    assert any("window" in p and "Privileged state" in p for p in conditions.unlike_rows(default_config, "table5_1"))
+
+
+def test_rows_the_study_shared_between_tables_are_one_experiment(profile):
+    tables = profile["tables"]
+    approx = {tables["table5_1"]["2D-Spatial-Proj"], tables["table5_3"]["approx-128"],
+              tables["table5_4"]["slots_ssl 14 slots (offline)"], tables["table5_9"]["Uniform"]}
+    pure = {tables["table5_1"]["Pure Visual"], tables["table5_6"]["Concatenation"], tables["table5_8"]["7-DoF"]}
+    assert len(approx) == 1 and len(pure) == 1
+    goal2d, pure_visual = resolve(profile, approx.pop()), resolve(profile, pure.pop())
+    assert goal2d["goal"] == "2d" and goal2d["goal_calibration"] == "approx" and goal2d["resolution"] == 128
+    assert pure_visual["goal"] == "none"
+    # the tables the study ran without a goal
+    for table in ("table5_5", "table5_6", "table5_7", "table5_8"):
+        assert {resolve(profile, e)["goal"] for e in tables[table].values()} == {"none"}, table
+    for table in ("table5_4", "table5_9"):
+        assert {resolve(profile, e)["goal_calibration"] for e in tables[table].values()} == {"approx"}, table
+
+
+def test_window_rows_get_one_training_budget_in_the_study_proportions(profile):
+    epochs = {label: resolve(profile, e)["epochs"] for label, e in profile["tables"]["table5_7"].items()}
+    base = profile["policy"]["epochs"]
+    assert epochs["T=5"] == base
+    assert epochs["T=20"] == round(base * 0.44) and epochs["T=40"] == round(base * 0.22)  # 680 : 300 : 150
+
+
+def test_the_full_profile_runs_the_study_recipe_and_the_default_names_its_departures(default_config):
+    full = cfgmod.load(*PROFILES["full"])
+    assert conditions.departures(full, "table5_3") == []
+    dep = conditions.departures(default_config, "table5_1")
+    assert "object_readout True (not Privileged state (control))" in dep and "evaluation.execute_actions 1" in dep and "width 64" in dep
+    line = conditions.footer(default_config, "table5_1")
+    assert line.startswith("Profile cpu-default. Rows differ only in: goal (and state_control")
+    assert conditions.footer(full, "table5_3").endswith("No departure from the study's recipe.")
+
+
+def test_a_departure_that_is_not_the_same_for_every_row_names_its_rows(default_config):
+    dep = conditions.departures(default_config, "table5_4")
+    assert "object_readout True (not DINO 14x14 dense)" in dep  # dense DINO runs without the read-out
+
+
+def test_table_markdown_ends_with_the_conditions_line(default_config, tmp_path):
+    frame = pl.DataFrame({"Method": ["a"], "SR mean": [0.5]})
+    report.write(frame, tmp_path / "t.csv", tmp_path / "t.md", "T", conditions.footer(default_config, "table5_9"))
+    last = (tmp_path / "t.md").read_text().rstrip().splitlines()[-1]
+    assert last.startswith("Profile cpu-default. Rows differ only in: loss_weighting;")
+    assert pl.read_csv(tmp_path / "t.csv").columns == ["Method", "SR mean"]  # the CSV stays a plain table

@@ -1,0 +1,118 @@
+"""The findings table on synthetic episode files whose verdicts are known, and the checks it is built from."""
+
+import json
+from pathlib import Path
+
+import polars as pl
+import pytest
+
+from ocpipe.config.experiments import resolve, saved_epochs
+from ocpipe.study import report, stats, targets
+
+
+def test_an_order_is_reproduced_only_when_the_episodes_resolve_it():
+    assert stats.rate_less("a", (10, 120), "b", (60, 120)).outcome == "holds"
+    assert stats.rate_less("a", (55, 120), "b", (60, 120)).outcome == "unresolved"
+    assert stats.rate_less("a", (60, 120), "b", (55, 120)).outcome == "opposite"
+    assert stats.rate_less("a", (60, 120), "b", (10, 120)).outcome == "violated"
+    check = stats.rate_less("a", (10, 120), "b", (60, 120))
+    assert check.p < 1e-9 and check.text == "SR a 10/120 (8.3 %) < b 60/120 (50.0 %)"
+
+
+def test_equal_and_at_most_claims_fail_only_when_resolved_against():
+    assert stats.rate_equal("a", (50, 120), "b", (58, 120)).outcome == "holds"
+    assert stats.rate_equal("a", (20, 120), "b", (60, 120)).outcome == "violated"
+    assert stats.rate_less("a", (58, 120), "b", (50, 120), strict=False).outcome == "holds"  # 'at most', unresolved
+    assert stats.rate_less("a", (90, 120), "b", (50, 120), strict=False).outcome == "violated"
+    assert stats.rate_at_most("a", (1, 120), 0.05).outcome == "holds"
+    assert stats.rate_at_most("a", (30, 120), 0.05).outcome == "violated"
+    assert stats.rate_above("a", (70, 80), 0.5, "share").outcome == "holds"
+    assert stats.rate_above("a", (10, 80), 0.5, "share").outcome == "violated"
+
+
+def test_verdicts_combine_checks_worst_first():
+    check = lambda outcome: stats.Check("", "", 0.5, outcome)  # noqa: E731
+    assert stats.verdict([check("holds"), check("holds")]) == "reproduced"
+    assert stats.verdict([check("holds"), check("unresolved")]) == "same direction, not resolved"
+    assert stats.verdict([check("unresolved"), check("opposite")]) == "opposite direction, not resolved"
+    assert stats.verdict([check("holds"), check("violated")]) == "not reproduced"
+
+
+def _episodes(successes: int, n: int, steps: int, run: int) -> pl.DataFrame:
+    # lengths spread around ``steps`` so that rank tests have ties to break
+    return pl.DataFrame({"exp": ["e"] * n, "checkpoint": [16] * n, "run": [run] * n, "seed": list(range(n)),
+                         "success": [i < successes for i in range(n)], "trivial": [False] * n,
+                         "steps": [steps + (i % 7) - 3 for i in range(n)], "return": [1.0] * n})
+
+
+def _classes(counts: dict[str, int]) -> pl.DataFrame:
+    labels = [c for c, k in counts.items() for _ in range(k)]
+    return pl.DataFrame({"seed": list(range(len(labels))), "trivial": [False] * len(labels), "class": labels})
+
+
+def write_rows(config, runs: Path, rows: dict[str, tuple[list[int], int, dict[str, int]]]) -> None:
+    """Per experiment: (successes per 40-episode run, mean length, failure-run class counts)."""
+    for exp, (per_run, steps, classes) in rows.items():
+        for r, f in enumerate(targets.artefacts(config, exp, "stability", str(runs))):
+            Path(f).parent.mkdir(parents=True, exist_ok=True)
+            _episodes(per_run[r], 40, steps, r).write_parquet(f)
+        _classes(classes).write_parquet(targets.artefacts(config, exp, "failures", str(runs))[0])
+        train_seeds = targets.artefacts(config, exp, "train_seeds", str(runs))[0]
+        _episodes(per_run[0], 40, steps, 0).write_parquet(train_seeds)
+        epochs = saved_epochs(resolve(config, exp))
+        for epoch, f in zip(epochs, targets.artefacts(config, exp, "sweep", str(runs)), strict=True):
+            Path(f).parent.mkdir(parents=True, exist_ok=True)
+            _episodes(per_run[0], 6, steps, 0).with_columns(checkpoint=pl.lit(epoch)).write_parquet(f)
+        Path(targets.artefacts(config, exp, "best", str(runs))[0]).write_text(json.dumps({"epoch": epochs[-1]}))
+
+
+def classes(near_miss, no_grasp, success, n=120):
+    return {"Success": success, "Near Miss": near_miss, "No Grasp": no_grasp,
+            "Drop": n - success - near_miss - no_grasp}
+
+
+def findings_of(config, tmp_path, rows, scope="findings_main"):
+    runs = tmp_path / "runs"
+    write_rows(config, runs, rows)
+    frame = report.write_findings(config, scope, tmp_path / "f.csv", tmp_path / "f.md", str(runs))
+    return {r["Finding"]: r for r in frame.iter_rows(named=True)}
+
+
+def test_the_study_reproduced(default_config, tmp_path):
+    got = findings_of(default_config, tmp_path, {
+        "pure_visual": ([4, 3, 5], 140, classes(near_miss=40, no_grasp=12, success=12)),
+        "goal2d": ([20, 18, 22], 110, classes(near_miss=20, no_grasp=12, success=60)),
+        "goal3d": ([32, 30, 31], 80, classes(near_miss=2, no_grasp=14, success=93)),
+        "state_control": ([39, 40, 38], 70, classes(near_miss=1, no_grasp=0, success=117)),
+    })
+    assert [got[i]["Verdict"] for i in (1, 2, 3)] == ["reproduced"] * 3
+    assert got[1]["This build"] == ("SR Pure Visual 12/120 (10.0 %) < 2D-Spatial-Proj 60/120 (50.0 %); "
+                                    "SR 2D-Spatial-Proj 60/120 (50.0 %) < Explicit-3D-GT 93/120 (77.5 %)")
+    assert got[1]["p"] < 0.05 and got[1]["Study"] == "31.0 / 55.0 / 71.7 %"
+    text = (tmp_path / "f.md").read_text()
+    assert "| 1 | 5.1 | SR: Pure Visual < 2D < 3D |" in text and "Profile cpu-default." in text
+
+
+def test_what_this_build_shows_when_it_differs_from_the_study(default_config, tmp_path):
+    got = findings_of(default_config, tmp_path, {
+        "pure_visual": ([4, 3, 5], 140, classes(near_miss=40, no_grasp=40, success=12)),
+        "goal2d": ([20, 18, 22], 110, classes(near_miss=20, no_grasp=12, success=60)),
+        "goal3d": ([18, 19, 17], 112, classes(near_miss=2, no_grasp=5, success=54)),  # 2D and 3D alike
+        "state_control": ([39, 40, 38], 70, classes(near_miss=1, no_grasp=0, success=117)),
+    })
+    assert got[1]["Verdict"] == "opposite direction, not resolved"  # 60 against 54 of 120
+    assert got[2]["Verdict"] == "not reproduced"  # 3D 2 steps longer than 2D in each of 120 episodes: resolved
+    assert got[3]["Verdict"] == "not reproduced"  # No Grasp 40 against 5 of 120: not 'about the same'
+
+
+def test_findings_without_weights_or_rows_say_what_is_missing(default_config, tmp_path):
+    rows = {exp: ([10, 10, 10], 100, classes(near_miss=10, no_grasp=10, success=30))
+            for exp in targets.experiments_of(default_config)}
+    got = findings_of(default_config, tmp_path, rows, scope="findings")
+    assert len(got) == 12
+    assert got[5]["Verdict"].startswith("not run: DINO CLS needs weights")
+    assert got[10]["Verdict"] == "reproduced"  # every weighting equal to uniform: 'at most' holds
+    del default_config["tables"]["table5_6"]["Cross-attention"]
+    row = report.write_findings(default_config, "findings", tmp_path / "g.csv", tmp_path / "g.md",
+                                str(tmp_path / "runs")).row(6, named=True)
+    assert row["Verdict"] == "not run: table5_6 has no row 'Cross-attention'"
