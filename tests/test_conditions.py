@@ -64,7 +64,8 @@ def test_the_full_profile_runs_the_study_recipe_and_the_default_names_its_depart
     full = cfgmod.load(*PROFILES["full"])
     assert conditions.departures(full, "table5_3") == []
     dep = conditions.departures(default_config, "table5_1")
-    assert "object_readout True (not Privileged state (control))" in dep and "evaluation.execute_actions 1" in dep and "width 64" in dep
+    assert "object_readout True (not Privileged state (control))" in dep
+    assert "evaluation.execute_actions 1" in dep and "width 64" in dep and "demos.num_demos 100" in dep
     line = conditions.footer(default_config, "table5_1")
     assert line.startswith("Profile cpu-default. Rows differ only in: goal (and state_control")
     assert conditions.footer(full, "table5_3").endswith("No departure from the study's recipe.")

@@ -1,12 +1,7 @@
 """The findings table on synthetic episode files whose verdicts are known, and the checks it is built from."""
 
-import json
-from pathlib import Path
+from synthetic_runs import classes, write_rows
 
-import polars as pl
-import pytest
-
-from ocpipe.config.experiments import resolve, saved_epochs
 from ocpipe.study import report, stats, targets
 
 
@@ -36,39 +31,6 @@ def test_verdicts_combine_checks_worst_first():
     assert stats.verdict([check("holds"), check("unresolved")]) == "same direction, not resolved"
     assert stats.verdict([check("unresolved"), check("opposite")]) == "opposite direction, not resolved"
     assert stats.verdict([check("holds"), check("violated")]) == "not reproduced"
-
-
-def _episodes(successes: int, n: int, steps: int, run: int) -> pl.DataFrame:
-    # lengths spread around ``steps`` so that rank tests have ties to break
-    return pl.DataFrame({"exp": ["e"] * n, "checkpoint": [16] * n, "run": [run] * n, "seed": list(range(n)),
-                         "success": [i < successes for i in range(n)], "trivial": [False] * n,
-                         "steps": [steps + (i % 7) - 3 for i in range(n)], "return": [1.0] * n})
-
-
-def _classes(counts: dict[str, int]) -> pl.DataFrame:
-    labels = [c for c, k in counts.items() for _ in range(k)]
-    return pl.DataFrame({"seed": list(range(len(labels))), "trivial": [False] * len(labels), "class": labels})
-
-
-def write_rows(config, runs: Path, rows: dict[str, tuple[list[int], int, dict[str, int]]]) -> None:
-    """Per experiment: (successes per 40-episode run, mean length, failure-run class counts)."""
-    for exp, (per_run, steps, classes) in rows.items():
-        for r, f in enumerate(targets.artefacts(config, exp, "stability", str(runs))):
-            Path(f).parent.mkdir(parents=True, exist_ok=True)
-            _episodes(per_run[r], 40, steps, r).write_parquet(f)
-        _classes(classes).write_parquet(targets.artefacts(config, exp, "failures", str(runs))[0])
-        train_seeds = targets.artefacts(config, exp, "train_seeds", str(runs))[0]
-        _episodes(per_run[0], 40, steps, 0).write_parquet(train_seeds)
-        epochs = saved_epochs(resolve(config, exp))
-        for epoch, f in zip(epochs, targets.artefacts(config, exp, "sweep", str(runs)), strict=True):
-            Path(f).parent.mkdir(parents=True, exist_ok=True)
-            _episodes(per_run[0], 6, steps, 0).with_columns(checkpoint=pl.lit(epoch)).write_parquet(f)
-        Path(targets.artefacts(config, exp, "best", str(runs))[0]).write_text(json.dumps({"epoch": epochs[-1]}))
-
-
-def classes(near_miss, no_grasp, success, n=120):
-    return {"Success": success, "Near Miss": near_miss, "No Grasp": no_grasp,
-            "Drop": n - success - near_miss - no_grasp}
 
 
 def findings_of(config, tmp_path, rows, scope="findings_main"):

@@ -5,6 +5,7 @@ import json
 import polars as pl
 import pytest
 import torch
+from synthetic_runs import classes, write_rows
 
 from ocpipe import paths
 from ocpipe.config.validate import deep_merge
@@ -83,12 +84,12 @@ def _fake_run(runs, exp, n_runs=3, epochs=(8, 16), pos_rows=85):
 
 def test_window_and_head_tables_read_checkpoints_and_sweeps(default_config, tmp_path):
     runs = tmp_path / "runs"
-    for exp, pos in (("goal2d", 85), ("window20", 340), ("window40", 680)):
+    for exp, pos in (("pure_visual", 85), ("window20", 340), ("window40", 680)):
         _fake_run(runs, exp, pos_rows=pos)
     t = report.write_table(default_config, "table5_7", tmp_path / "t7.csv", tmp_path / "t7.md", runs_dir=runs)
     assert t["Sequence length"].to_list() == [85, 340, 680] and t["T"].to_list() == [5, 20, 40]
     assert t["Reward at peak"].to_list() == [4.0] * 3 and t["Best epoch"].to_list() == [16] * 3
-    assert t["Minutes/epoch"].to_list() == [1.0] * 3
+    assert t["Minutes/epoch"].to_list() == [1.0] * 3 and t["Epochs"].to_list() == [16, 7, 4]  # one budget
     for exp in ("head_flatten", "head_deepsets", "head_weighted_pool", "head_slot_transformer"):
         _fake_run(runs, exp)
     t = report.write_table(default_config, "table5_5", tmp_path / "t5.csv", tmp_path / "t5.md", runs_dir=runs)
@@ -102,15 +103,16 @@ def test_figures_draw_rows_and_mark_missing_weights(default_config, tmp_path):
     _fake_run(runs, "goal2d")
     report.write_figure(default_config, "fig5_5", tmp_path / "fig5_5.png", runs_dir=runs)
     assert (tmp_path / "fig5_5.png").stat().st_size > 5_000
-    classes = pl.DataFrame({"class": ["No Grasp", "Grasp No Stack", "Success"], "trivial": [False] * 3,
-                            "grasp": [False, True, True], "lift": [False, True, True],
-                            "near target": [False, False, True], "success": [False, False, True]})
+    stack = pl.DataFrame({"class": ["No Grasp", "Grasp No Stack", "Success"], "trivial": [False] * 3,
+                          "grasp": [False, True, True], "lift": [False, True, True],
+                          "near target": [False, False, True], "success": [False, False, True]})
     for exp in ("stack_native", "stack_aligned"):
         (runs / exp).mkdir()
-        classes.write_parquet(runs / exp / "failures.parquet")
+        stack.write_parquet(runs / exp / "failures.parquet")
     report.write_figure(default_config, "fig5_7", tmp_path / "fig5_7.png", runs_dir=runs)
     t = report.write_table(default_config, "table5_11", tmp_path / "t11.csv", tmp_path / "t11.md", runs_dir=runs)
-    assert t["Grasp No Stack"].to_list() == [1, 1] and t["Total"].to_list() == [3, 3]
+    assert t["Method"].to_list() == ["Aligned (base + side, 2D goal)"]  # the study's Table 5.11: aligned only
+    assert t["Grasp No Stack"].to_list() == [1] and t["Total"].to_list() == [3]
 
 
 def test_training_seed_runs_draw_from_the_demo_seeds(default_config):
@@ -122,10 +124,10 @@ def test_training_seed_runs_draw_from_the_demo_seeds(default_config):
 
 
 def test_stackcube_failure_table_always_has_grasp_no_stack(tmp_path):
-    classes = pl.DataFrame({"class": ["No Grasp", "Success"], "trivial": [False, False]})
-    t = tables.table5_2({"Native": classes}, always=("Grasp No Stack",)).row(0, named=True)
+    stack = pl.DataFrame({"class": ["No Grasp", "Success"], "trivial": [False, False]})
+    t = tables.table5_2({"Native": stack}, always=("Grasp No Stack",)).row(0, named=True)
     assert t["Grasp No Stack"] == 0 and t["Grasp No Stack %"] == 0.0 and t["Total"] == 2
-    assert "Grasp No Stack" not in tables.table5_2({"Native": classes}).columns
+    assert "Grasp No Stack" not in tables.table5_2({"Native": stack}).columns
 
 
 def test_run_files_come_from_the_path_patterns_under_any_runs_folder(default_config):
@@ -144,3 +146,31 @@ def test_store_names_fill_the_path_patterns():
         task="StackCube-v1", cams="native", res=64, encoder="slots_ssl")
     with pytest.raises(ValueError, match="no store name fields"):
         paths.named(paths.BEST, "PickCube-v1_dual_128")
+
+
+def test_tables_put_each_rows_figures_in_its_row(default_config, tmp_path):
+    """Rows with different success rates, lengths and failure classes: a swapped row or a wrong formula shows."""
+    runs = tmp_path / "runs"
+    write_rows(default_config, runs, {
+        "pure_visual": ([4, 3, 5], 140, classes(near_miss=40, no_grasp=12, success=12)),
+        "goal2d": ([20, 18, 22], 110, classes(near_miss=20, no_grasp=12, success=60)),
+        "goal3d": ([32, 30, 31], 80, classes(near_miss=2, no_grasp=14, success=93)),
+        "state_control": ([39, 40, 38], 70, classes(near_miss=1, no_grasp=0, success=117)),
+    })
+    t1 = report.write_table(default_config, "table5_1", tmp_path / "t1.csv", tmp_path / "t1.md", str(runs))
+    by = {r["Method"]: r for r in t1.iter_rows(named=True)}
+    assert list(by) == ["Pure Visual", "2D-Spatial-Proj", "Explicit-3D-GT", "Privileged state (control)"]
+    expected = {"Pure Visual": ([4, 3, 5], 140), "2D-Spatial-Proj": ([20, 18, 22], 110),
+                "Explicit-3D-GT": ([32, 30, 31], 80), "Privileged state (control)": ([39, 40, 38], 70)}
+    for label, (per_run, length) in expected.items():
+        rates = [k / 40 for k in per_run]
+        assert by[label]["SR mean"] == pytest.approx(sum(rates) / 3)
+        assert by[label]["SR std"] == pytest.approx(float(pl.Series(rates).std()))
+        assert by[label]["Episode length mean"] == pytest.approx(length, abs=0.5)  # lengths spread +-3 around it
+        assert (by[label]["Runs"], by[label]["Episodes per run"]) == (3, 40)
+    t2 = report.write_table(default_config, "table5_2", tmp_path / "t2.csv", tmp_path / "t2.md", str(runs))
+    by2 = {r["Method"]: r for r in t2.iter_rows(named=True)}
+    assert [by2[m]["Near Miss"] for m in by] == [40, 20, 2, 1] and [by2[m]["Success"] for m in by] == [12, 60, 93, 117]
+    assert by2["Pure Visual"]["Near Miss %"] == pytest.approx(100 * 40 / 120)
+    assert by2["Explicit-3D-GT"]["Drop"] == 120 - 93 - 2 - 14
+    assert (tmp_path / "t1.md").read_text().rstrip().splitlines()[-1].startswith("Profile cpu-default.")

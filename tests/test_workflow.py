@@ -34,7 +34,8 @@ TINY = {
 
 TABLES = ["results/tables/table5_1.csv", "results/tables/table5_2.csv", "results/figures/fig5_1.png",
           "results/figures/fig5_2.png", "results/figures/fig5_3.png",
-          "results/tables/table5_6.csv"]  # an ablation table end to end: fusion, with training-seed runs
+          "results/tables/table5_6.csv",  # an ablation table end to end: fusion, with training-seed runs
+          "results/tables/findings_main.csv"]
 TRAINED = ["results/runs/goal2d/train_log.parquet"]
 
 
@@ -223,6 +224,49 @@ def test_fusion_table_end_to_end_with_training_seed_runs(tiny_run):
     demo_seeds = frames_store.open_store(tiny_run / "results" / "frames" / "PickCube-v1_dual_64.zarr").attrs[
         "episode_seeds"]
     assert set(seeds["seed"].to_list()) <= set(demo_seeds)
+
+
+def test_table_jobs_draw_pairwise_disjoint_test_seeds_and_record_their_settings(tiny_run):
+    import polars as pl
+
+    from ocpipe.config import validate as cfgmod
+    from ocpipe.config.seed_pools import pools
+
+    config = cfgmod.load(REPO / "config" / "config.yaml", tiny_run / "tiny.yaml")
+    _, test_pool = pools(config["evaluation"])
+    files = sorted((tiny_run / "results" / "runs").glob("**/*.episodes.parquet"))
+    by_exp = {}
+    for f in files:
+        eps = pl.read_parquet(f)
+        # every episode file says how it was evaluated
+        assert set(eps["readout_filter"]) == {"none"} and set(eps["episode_cap"]) == {12}, f
+        assert set(eps["execute_actions"]) == {2} and set(eps["temporal_ensemble"]) == {0.25}, f
+        kind = eps["kind"][0]
+        if kind == "train_seeds":
+            assert set(eps["seed_pool"]) == {"demos"}
+            continue
+        assert set(eps["seed_pool"]) == {"test"} and set(eps["seed"]) <= set(test_pool.tolist()), f
+        draw = "sweep" if kind == "sweep" else f"{kind} {eps['run'][0]}"
+        by_exp.setdefault(eps["exp"][0], {}).setdefault(draw, set()).update(eps["seed"].to_list())
+    assert set(by_exp) >= {"pure_visual", "goal2d", "goal3d", "state_control", "fusion_cross_attention"}
+    for exp, draws in by_exp.items():
+        assert {"sweep", "stability 0", "stability 1"} <= set(draws), exp
+        names = sorted(draws)
+        for i, a in enumerate(names):
+            for b in names[i + 1:]:
+                assert not draws[a] & draws[b], f"{exp}: {a} and {b} share seeds {sorted(draws[a] & draws[b])}"
+    # rows are compared on the same episodes: every experiment's stability run 0 drew the same seeds
+    assert len({frozenset(d["stability 0"]) for d in by_exp.values()}) == 1
+
+
+def test_findings_of_the_main_job_are_built_from_its_episodes(tiny_run):
+    import polars as pl
+
+    f = pl.read_csv(tiny_run / "results" / "tables" / "findings_main.csv")
+    assert f["Finding"].to_list() == [1, 2, 3]
+    assert all(v in ("reproduced", "same direction, not resolved", "opposite direction, not resolved",
+                     "not reproduced") for v in f["Verdict"])
+    assert "Pure Visual" in f["This build"][0] and "/4 (" in f["This build"][0]  # 2 runs x 2 episodes per row
 
 
 def test_dry_run_of_all_audits_the_whole_study_on_both_configs(tmp_path):
