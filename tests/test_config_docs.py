@@ -88,7 +88,7 @@ def test_render_lists_key_paths_with_their_defaults():
     assert "`residual`" in rows["policy.joint_targets"] and "`absolute`" in rows["policy.joint_targets"]
     assert f"`{defaults['evaluation']['stability_episodes']}`" in rows["evaluation.stability_episodes"]
     assert "`[0.4, 0.3, 0.5]`" in rows["cameras.side.eye"]  # $ref to $defs/camera, each site with its own values
-    assert "`{goal: 2d, resolution: 224}`" in rows["experiments.goal2d_224"]
+    assert "`{goal: 2d, goal_calibration: exact, resolution: 224}`" in rows["experiments.goal2d_exact_224"]
     assert "any key of `policy`" in rows["experiments.<name>.*"]  # the policy keys reused through the YAML anchor
     assert "(optional)" in rows["compute.<stage>.gpu"]
     assert "\\|" in rows["encoders.slots_ssl.train_stores"]  # a pattern's '|' must not split the table cell

@@ -331,6 +331,9 @@ def test_summary_names_probes_and_open_loop_error(tiny_run):
     text = "\n".join(summary_lines(tiny_run / "results"))
     assert "position probes, median cm on 1 held-out episodes: obj mean" in text
     assert "open-loop joint error" in text and "Privileged state (control)" in text
+    # Table 5.1, then the findings it covers, then the other tables in their numeric order
+    order = [text.index(t) for t in ("**Table 5.1:", "**Findings of the study", "**Table 5.2:", "**Table 5.6:")]
+    assert order == sorted(order)
 
 
 def test_an_episode_is_the_same_in_a_fresh_env_and_after_other_episodes(tiny_run):

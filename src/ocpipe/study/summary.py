@@ -79,6 +79,14 @@ def summary_lines(results: str | Path) -> list[str]:
             f"policy    {path.parent.name}: {log['epoch'].max()} epochs, {log['seconds'].mean():.1f} s/epoch, "
             f"final loss {log['loss'][-1]:.4f}{openloop}{picked}"
         )
-    for path in sorted(results.glob("tables/table5_*.md")):
+    for path in _tables_in_order(results):
         lines += ["", path.read_text().rstrip()]
     return lines or [f"nothing built under {results} yet"]
+
+
+def _tables_in_order(results: Path) -> list[Path]:
+    """Table 5.1, then the findings (all twelve where built, else the main job's), then Tables 5.2-5.11."""
+    tables = sorted(results.glob("tables/table5_*.md"), key=lambda p: int(p.stem.removeprefix("table5_")))
+    findings = next((p for p in (results / "tables" / f"{n}.md" for n in ("findings", "findings_main"))
+                     if p.is_file()), None)
+    return tables[:1] + ([findings] if findings else []) + tables[1:]
