@@ -1,6 +1,7 @@
 """Snakemake end to end on a tiny config in a temporary directory: demos -> replay -> frames store -> report."""
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -279,6 +280,13 @@ def test_dry_run_of_all_audits_the_whole_study_on_both_configs(tmp_path):
             assert f"results/figures/{fig}.png" in out
         assert "wildcards: exp=stack_native" in out and "wildcards: exp=window40" in out
         assert "wildcards: exp=dino_cls" not in out  # no weights given: the row says so instead
+        # exactly the study's experiments, each once (shared rows are one experiment)
+        planned = set(re.findall(r"wildcards: exp=([\w-]+)", out))
+        assert planned == {"pure_visual", "goal2d", "goal3d", "state_control", "goal2d_exact", "goal2d_exact_224",
+                           "head_flatten", "head_deepsets", "head_weighted_pool", "head_slot_transformer",
+                           "fusion_cross_attention", "window20", "window40", "proprio9_global", "proprio9_grouped",
+                           "weight_time", "weight_u_shaped", "weight_dim_decoupled", "stack_native", "stack_aligned"}
+        assert "results/tables/findings.csv" in out
     assert "results/frames/StackCube-v1_dual_224" in thesis and "results/frames/StackCube-v1_dual_224" not in default
 
 
