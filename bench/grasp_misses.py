@@ -74,7 +74,7 @@ def main() -> None:
         return out
 
     loop.model.forward = forward_recording_aux
-    seeds = jobs.seeds_for("validation", config["evaluation"], config["seed"], run=args.episodes)
+    seeds = jobs.validation_seeds(config["evaluation"], args.episodes, config["seed"])
     rows = []
     try:
         for seed in seeds:

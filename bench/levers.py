@@ -64,7 +64,7 @@ def run_lever(label: str, policy: dict, config: dict, episodes: int, threads: in
     ckpt = out_dir / "checkpoints" / f"epoch_{policy['epochs']:04d}.pt"
     loop = closed_loop.ClosedLoop(ckpt, config, results / "frames" / f"{experiments.frames_store(policy)}.zarr",
                                   enc_ckpt)
-    seeds = jobs.seeds_for("validation", config["evaluation"], config["seed"], run=episodes)
+    seeds = jobs.validation_seeds(config["evaluation"], episodes, config["seed"])
     t0 = time.perf_counter()
     try:
         eps, steps = closed_loop.run(loop, seeds, {"exp": label, "checkpoint": policy["epochs"], "run": 0})

@@ -101,11 +101,11 @@ def test_table_jobs_draw_disjoint_blocks_of_the_test_pool_the_same_for_every_exp
 
 
 def test_validation_seeds_never_meet_the_test_pool():
-    val = jobs.seeds_for("validation", EVAL, 0, run=100)
+    val = jobs.validation_seeds(EVAL, 100, 0)
     assert len(set(val)) == 100 and min(val) >= 10000 and max(val) < 10200
-    assert set(jobs.seeds_for("validation", EVAL, 0, run=10)) <= set(val)  # a prefix of one shuffle
+    assert set(jobs.validation_seeds(EVAL, 10, 0)) <= set(val)  # a prefix of one shuffle
     with pytest.raises(ValueError, match="validation_pool_size is 200"):
-        jobs.seeds_for("validation", EVAL, 0, run=201)
+        jobs.validation_seeds(EVAL, 201, 0)
 
 
 def test_a_test_pool_too_small_for_the_table_jobs_is_named():

@@ -21,30 +21,31 @@ TEST_KINDS = ("sweep", "stability", "failure_run")  # each draws its own block o
 
 def seeds_for(kind: str, evaluation_cfg: dict, seed: int, run: int = 0,
               episode_seeds: list[int] | None = None) -> list[int]:
-    """A job's seeds. Table jobs (sweep, stability run ``run``, failure run) take pairwise disjoint blocks of one
-    shuffle of the test pool, the same for every experiment (rows are compared on the same episodes);
-    'train_seeds' are demo seeds (Table 5.6), 'validation' the first episodes of a shuffle of the validation pool
-    (``run`` of them), for everything that chooses a setting."""
+    """A table job's seeds. The sweep, stability run ``run`` and the failure run take pairwise disjoint blocks of
+    one shuffle of the test pool, the same for every experiment (rows are compared on the same episodes);
+    'train_seeds' are demo seeds (Table 5.6)."""
     if kind == "train_seeds":
         return training_seeds(evaluation_cfg, episode_seeds or [], seed)
-    validation, test = pools(evaluation_cfg)
-    if kind == "validation":
-        if run > len(validation):
-            raise ValueError(f"{run} validation episodes asked for but evaluation.validation_pool_size is "
-                             f"{len(validation)}")
-        return sorted(int(s) for s in np.random.default_rng([seed, VALIDATION_POOL]).permutation(validation)[:run])
     if kind not in TEST_KINDS:
         raise ValueError(f"unknown evaluation kind {kind!r}")
     problems = pool_problems(evaluation_cfg)
     if problems:
         raise ValueError(problems[0].strip())
+    shuffled = np.random.default_rng([seed, TEST_POOL]).permutation(pools(evaluation_cfg)[1])
     start = 0
     for block, n in table_blocks(evaluation_cfg).items():
         if block == (kind, run if kind == "stability" else 0):
-            shuffled = np.random.default_rng([seed, TEST_POOL]).permutation(test)
             return sorted(int(s) for s in shuffled[start:start + n])
         start += n
     raise ValueError(f"stability run {run}: evaluation.stability_runs is {evaluation_cfg['stability_runs']}")
+
+
+def validation_seeds(evaluation_cfg: dict, n: int, seed: int) -> list[int]:
+    """The first ``n`` seeds of one shuffle of the validation pool: for everything that chooses a setting."""
+    validation = pools(evaluation_cfg)[0]
+    if n > len(validation):
+        raise ValueError(f"{n} validation episodes asked for but evaluation.validation_pool_size is {len(validation)}")
+    return sorted(int(s) for s in np.random.default_rng([seed, VALIDATION_POOL]).permutation(validation)[:n])
 
 
 def training_seeds(evaluation_cfg: dict, episode_seeds: list[int], seed: int) -> list[int]:
