@@ -9,6 +9,7 @@ def test_an_order_is_reproduced_only_when_the_episodes_resolve_it():
     assert stats.rate_less("a", (10, 120), "b", (60, 120)).outcome == "holds"
     assert stats.rate_less("a", (55, 120), "b", (60, 120)).outcome == "unresolved"
     assert stats.rate_less("a", (60, 120), "b", (55, 120)).outcome == "opposite"
+    assert stats.rate_less("a", (0, 4), "b", (0, 4)).outcome == "tie"  # equal figures lean neither way
     assert stats.rate_less("a", (60, 120), "b", (10, 120)).outcome == "violated"
     check = stats.rate_less("a", (10, 120), "b", (60, 120))
     assert check.p < 1e-9 and check.text == "SR a 10/120 (8.3 %) < b 60/120 (50.0 %)"
@@ -30,6 +31,7 @@ def test_verdicts_combine_checks_worst_first():
     assert stats.verdict([check("holds"), check("holds")]) == "reproduced"
     assert stats.verdict([check("holds"), check("unresolved")]) == "same direction, not resolved"
     assert stats.verdict([check("unresolved"), check("opposite")]) == "opposite direction, not resolved"
+    assert stats.verdict([check("unresolved"), check("tie")]) == "no difference seen, not resolved"
     assert stats.verdict([check("holds"), check("violated")]) == "not reproduced"
 
 

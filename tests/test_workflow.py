@@ -266,7 +266,7 @@ def test_findings_of_the_main_job_are_built_from_its_episodes(tiny_run):
     f = pl.read_csv(tiny_run / "results" / "tables" / "findings_main.csv")
     assert f["Finding"].to_list() == [1, 2, 3]
     assert all(v in ("reproduced", "same direction, not resolved", "opposite direction, not resolved",
-                     "not reproduced") for v in f["Verdict"])
+                     "no difference seen, not resolved", "not reproduced") for v in f["Verdict"])
     assert "Pure Visual" in f["This build"][0] and "/4 (" in f["This build"][0]  # 2 runs x 2 episodes per row
 
 

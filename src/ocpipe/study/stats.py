@@ -3,6 +3,7 @@ resolve it? Each check gives the figures it compared, the test, its p-value and 
 
   holds       the claim holds and is resolved (p < ALPHA), or, for 'equal' and 'at most' claims, is not violated
   unresolved  the claimed direction is seen but p >= ALPHA
+  tie         neither direction is seen (equal figures)
   opposite    the opposite direction is seen, not resolved
   violated    the opposite direction is resolved, or an 'equal' claim is resolved apart"""
 
@@ -22,7 +23,7 @@ class Check:
     text: str  # what was compared, with its figures
     test: str
     p: float | None
-    outcome: str  # holds | unresolved | opposite | violated
+    outcome: str  # holds | unresolved | tie | opposite | violated
     directional: bool = True  # a strict order the episodes must resolve (not an 'equal' or 'at most' claim)
 
 
@@ -42,14 +43,13 @@ def _fisher(a: tuple[int, int], b: tuple[int, int], alternative: str) -> float:
     return float(stats.fisher_exact(table, alternative=alternative).pvalue)
 
 
-def _order(p_claimed: float, p_opposite: float, claimed_seen: bool, strict: bool) -> str:
+def _order(p_claimed: float, p_opposite: float, seen: float, strict: bool) -> str:
+    """``seen``: > 0 when the figures lean the claimed way, < 0 the other way, 0 when equal."""
     if p_opposite < ALPHA:
         return "violated"
-    if not strict:
+    if not strict or p_claimed < ALPHA:
         return "holds"
-    if p_claimed < ALPHA:
-        return "holds"
-    return "unresolved" if claimed_seen else "opposite"
+    return "unresolved" if seen > 0 else "tie" if seen == 0 else "opposite"
 
 
 def rate_less(a: str, ka: tuple[int, int], b: str, kb: tuple[int, int], what: str = "SR",
@@ -58,7 +58,7 @@ def rate_less(a: str, ka: tuple[int, int], b: str, kb: tuple[int, int], what: st
     if not ka[1] or not kb[1]:
         return Check(f"{what} {a} vs {b}: no episodes", "Fisher exact, one-sided", None, "unresolved")
     p_less, p_greater = _fisher(ka, kb, "less"), _fisher(ka, kb, "greater")
-    seen = ka[0] / ka[1] < kb[0] / kb[1] if strict else ka[0] / ka[1] <= kb[0] / kb[1]
+    seen = kb[0] / kb[1] - ka[0] / ka[1]
     sign = "<" if strict else "<="
     return Check(f"{what} {a} {_rate(ka)} {sign} {b} {_rate(kb)}", "Fisher exact, one-sided",
                  p_less if strict else p_greater, _order(p_less, p_greater, seen, strict), strict)
@@ -91,7 +91,7 @@ def rate_above(a: str, ka: tuple[int, int], share: float, what: str) -> Check:
     p_greater = float(stats.binomtest(k, n, share, alternative="greater").pvalue)
     p_less = float(stats.binomtest(k, n, share, alternative="less").pvalue)
     return Check(f"{what} {a} {_rate(ka)} > {100 * share:.0f} %", "binomial, one-sided", p_greater,
-                 _order(p_greater, p_less, k / n > share, True))
+                 _order(p_greater, p_less, k / n - share, True))
 
 
 def values_greater(a: str, va, b: str, vb, what: str) -> Check:
@@ -102,7 +102,7 @@ def values_greater(a: str, va, b: str, vb, what: str) -> Check:
     p_greater = float(stats.mannwhitneyu(va, vb, alternative="greater").pvalue)
     p_less = float(stats.mannwhitneyu(va, vb, alternative="less").pvalue)
     return Check(f"{what} {a} {va.mean():.1f} (n={len(va)}) > {b} {vb.mean():.1f} (n={len(vb)})",
-                 "Mann-Whitney U, one-sided", p_greater, _order(p_greater, p_less, va.mean() > vb.mean(), True))
+                 "Mann-Whitney U, one-sided", p_greater, _order(p_greater, p_less, va.mean() - vb.mean(), True))
 
 
 def verdict(checks: list[Check]) -> str:
@@ -112,6 +112,8 @@ def verdict(checks: list[Check]) -> str:
         return "not reproduced"
     if "opposite" in outcomes:
         return "opposite direction, not resolved"
+    if "tie" in outcomes:
+        return "no difference seen, not resolved"
     if "unresolved" in outcomes:
         return "same direction, not resolved"
     return "reproduced"
