@@ -73,12 +73,12 @@ def departures(config: dict, table: str) -> list[str]:
 
 
 def footer(config: dict, table: str) -> str:
+    """The line under a table: profile, what its rows vary, what the study held fixed, this profile's departures."""
     spec = TABLES[table]
     varies = ", ".join(spec.varies) or "nothing (one row)"
     dep = departures(config, table)
-    text = (f"Profile {config.get('profile', '?')}. Rows differ only in: {varies}"
+    return (f"Profile {config.get('profile', '?')}. Rows differ only in: {varies}"
             + (f" (and {', '.join(spec.allowed)} in what it needs to run)" if spec.allowed else "")
             + (f"; the study held fixed: {spec.fixed}" if spec.fixed else "") + ". "
             + ("Departures from the study's recipe, the same for every row unless named: " + "; ".join(dep)
                if dep else "No departure from the study's recipe") + ".")
-    return text
