@@ -26,8 +26,9 @@ class Table:
     allowed: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
 
-# the privileged-state control reads the object's true pose instead of rendered tokens: no camera, no read-out
-CONTROL = {"state_control": ("goal", "encoder", "cameras", "object_readout", "readout_scenes")}
+# the privileged-state control reads the object's true pose instead of rendered tokens: no camera, no read-out,
+# and no visual token to blank (its one token is the pose)
+CONTROL = {"state_control": ("goal", "encoder", "cameras", "object_readout", "readout_scenes", "visual_dropout")}
 # dense DINO fits in memory only this way (the study's own exception, a column of its Table 5.4)
 DENSE = {"dino_dense": ("window", "horizon", "batch_size", "object_readout", "readout_scenes")}
 SPATIAL = "encoder, cameras (base + side) and resolution 128 px, T, H, demos and training"
