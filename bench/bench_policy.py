@@ -24,7 +24,7 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from ocpipe.config import experiments  # noqa: E402
 from ocpipe.config import validate as cfgmod  # noqa: E402
-from ocpipe.policy.training import load_data  # noqa: E402
+from ocpipe.policy import data  # noqa: E402
 from ocpipe.policy.windows import ChunkWindowLoader, make_batch  # noqa: E402
 
 
@@ -46,7 +46,8 @@ class RandomAccessWindows(torch.utils.data.Dataset):
 
 def _loader_worker(kind, policy, features, frames, max_batches, queue):
     torch.set_num_threads(1)
-    tokens, labels, _, _ = load_data(policy, features, frames)
+    d = data.load(policy, features, frames)
+    tokens, labels = d.tokens, d.labels
     if kind == "chunk-aware":
         it = ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], policy["batch_size"],
                                policy["cameras"], seed=0).epoch(0)
@@ -81,7 +82,8 @@ def seconds_per_epoch(policy, features, frames, max_batches, threads):
     from ocpipe.policy.weighting import loss_weights
 
     torch.set_num_threads(threads)
-    tokens, labels, _, meta = load_data(policy, features, frames)
+    d = data.load(policy, features, frames)
+    tokens, labels, meta = d.tokens, d.labels, d.meta
     loader = ChunkWindowLoader(
         tokens, labels, policy["window"], policy["horizon"], policy["batch_size"], policy["cameras"], seed=0
     )
@@ -91,8 +93,8 @@ def seconds_per_epoch(policy, features, frames, max_batches, threads):
     n, t0 = 0, time.perf_counter()
     for _, batch in enumerate(loader.epoch(0)):
         loss = loss_terms(
-            model(batch["tokens"], batch["proprio"], batch["goal"], batch.get("first")),
-            batch["action"],
+            model(batch["tokens"], batch["proprio"], batch["goal"]).actions,
+            model.normalizer.actions_to_model(batch["action"], batch["qpos"]),
             loss_weights("uniform", batch["progress"]),
             False,
         )["loss"]

@@ -64,13 +64,13 @@ def main() -> None:
     beliefs: list[np.ndarray] = []
     forward = loop.model.forward
 
-    def forward_recording_aux(*a, **k):  # keep what the auxiliary head believes at every query
-        out, aux = forward(*a, aux=True)
-        if aux["object_pos"] is not None:
-            beliefs.append(aux["object_pos"][0].numpy() * loop.stats["aux_std"] + loop.stats["aux_mean"])
-        elif aux["readout"] is not None:
-            pose = aux["readout"][0, -1].numpy() * loop.stats["readout_std"] + loop.stats["readout_mean"]
-            beliefs.append(pose[:3])
+    def forward_recording_aux(*a, **k):  # keep what the auxiliary head (or the read-out) believes at every query
+        out = forward(*a, **k)
+        norm = loop.model.normalizer
+        if out.object_pos is not None:
+            beliefs.append(norm.aux.invert(out.object_pos)[0].numpy())
+        elif out.readout is not None:
+            beliefs.append(norm.pose.invert(out.readout[0, -1])[:3].numpy())
         return out
 
     loop.model.forward = forward_recording_aux

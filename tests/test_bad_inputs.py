@@ -22,7 +22,7 @@ from ocpipe.evaluation import closed_loop
 from ocpipe.features import encode
 from ocpipe.frames import render, replay
 from ocpipe.frames import store as frames_store
-from ocpipe.policy.training import load_data
+from ocpipe.policy.data import load as load_data
 
 
 def no_leftovers(folder):

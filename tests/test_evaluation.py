@@ -1,7 +1,6 @@
 import numpy as np
 import polars as pl
 import pytest
-import torch
 
 from ocpipe.config.errors import ConfigError
 from ocpipe.config.validate import validate
@@ -253,17 +252,3 @@ def test_temporal_ensemble_weights_older_chunks_more_and_votes_the_gripper():
     assert a[7] == 1.0
     # step 5: the old chunk (4 steps from 0) no longer covers it
     np.testing.assert_array_equal(ensemble_action(chunks, 5, 0.5), new[3])
-
-
-def test_static_object_filter_averages_until_the_gripper_closes_and_restarts_when_it_opens():
-    from ocpipe.evaluation.closed_loop import StaticObjectFilter
-
-    f = StaticObjectFilter()
-    poses = [torch.full((5,), v) for v in (1.0, 3.0, 5.0, 7.0, 9.0, 2.0)]
-    assert torch.equal(f(poses[0], gripper_closed=False), poses[0])
-    assert torch.equal(f(poses[1], gripper_closed=False), torch.full((5,), 2.0))  # the mean of the looks so far
-    assert torch.equal(f(poses[2], gripper_closed=False), torch.full((5,), 3.0))
-    assert torch.equal(f(poses[3], gripper_closed=True), poses[3])  # gripped: the object may move, no mean
-    assert torch.equal(f(poses[4], gripper_closed=False), poses[4])  # opened again: the mean starts afresh
-    assert torch.equal(f(poses[5], gripper_closed=False), torch.full((5,), 5.5))
-    assert torch.equal(poses[0], torch.full((5,), 1.0))  # the caller's tensors are left as they were

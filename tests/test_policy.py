@@ -1,5 +1,4 @@
 import itertools
-from contextlib import nullcontext
 
 import numpy as np
 import polars as pl
@@ -7,10 +6,12 @@ import pytest
 import torch
 from policy_stores import policy_settings, write_stores
 
-from ocpipe.policy import normalization
+from ocpipe.policy import data, observation
+from ocpipe.policy.checkpoint import load_policy
 from ocpipe.policy.model import PROPRIO_DIMS, SequencePolicy, loss_terms
+from ocpipe.policy.normalization import Normalizer
 from ocpipe.policy.settings import PolicySettings
-from ocpipe.policy.training import learning_rate, load_data, load_policy, train
+from ocpipe.policy.training import train
 from ocpipe.policy.weighting import loss_weights
 from ocpipe.policy.windows import ChunkWindowLoader, Labels, action_frames, progress, window_frames
 
@@ -32,14 +33,13 @@ def test_changing_a_future_timestep_leaves_earlier_outputs_unchanged(visual_head
     torch.manual_seed(0)
     model = SequencePolicy(policy, 7, 16).eval()
     tokens, proprio, goal = inputs(policy)
-    before = model(tokens, proprio, goal, all_steps=True)
+    before = model.action_states(model.tokens(tokens, proprio, goal)[0])  # (B, T, W): every step's action token
     tokens[:, 3] += 1.0
     proprio[:, 3] += 1.0
     goal[:, 3] += 1.0
-    after = model(tokens, proprio, goal, all_steps=True)
+    after = model.action_states(model.tokens(tokens, proprio, goal)[0])
     torch.testing.assert_close(after[:, :3], before[:, :3], rtol=0, atol=1e-6)
     assert not torch.allclose(after[:, 3], before[:, 3])
-    torch.testing.assert_close(model(tokens, proprio, goal), after[:, -1])
 
 
 VARIANTS = [dict(zip(("goal", "proprio", "visual_head", "gripper", "action_head", "cameras"), v)) for v in
@@ -51,7 +51,7 @@ VARIANTS = [dict(zip(("goal", "proprio", "visual_head", "gripper", "action_head"
 def test_every_variant_predicts_h_by_8_actions(variant):
     policy = policy_settings(**variant)
     model = SequencePolicy(policy, 7, 16)
-    out = model(*inputs(policy))
+    out = model(*inputs(policy)).actions
     assert out.shape == (3, policy["horizon"], 8)
     if variant["action_head"] == "tanh":
         assert out[..., :7].abs().max() <= 1.0
@@ -64,23 +64,53 @@ def test_dino_readouts_of_any_token_count(K, D):
     policy = policy_settings(window=1, horizon=1)
     model = SequencePolicy(policy, K, D)
     assert model.per_step == 2 * K + 3
-    assert model(*inputs(policy, K=K, D=D)).shape == (3, 1, 8)
+    assert model(*inputs(policy, K=K, D=D)).actions.shape == (3, 1, 8)
+
+
+def normalizer(**overrides) -> Normalizer:
+    policy = PolicySettings.of(policy_settings(**overrides))
+    return Normalizer(policy, 7, 16, len(policy.cameras), PROPRIO_DIMS[policy.proprio], 4)
+
+
+def fit(norm: Normalizer, x=None, action=None, **overrides):
+    """Fit on proprio inputs ``x`` and absolute actions, the other inputs zero."""
+    policy = PolicySettings.of(policy_settings(**overrides))
+    n = len(x if x is not None else action)
+    norm.fit(policy, proprio=np.zeros((n, PROPRIO_DIMS[policy.proprio])) if x is None else x,
+             goal=np.zeros((n, 4), np.float32), action=np.zeros((n, 8), np.float32) if action is None else action,
+             qpos_at=np.zeros((n, 9), np.float32), pose=None, aux=None)
 
 
 def test_gripper_is_a_hard_step_and_joints_are_denormalized():
-    stats = {"action_mean": np.arange(8, dtype=np.float32) * 0.1, "action_std": np.full(8, 2.0, np.float32)}
-    stats["action_mean"][7], stats["action_std"][7] = 0, 1
-    pred = np.zeros((3, 8), np.float32)
-    pred[:, 0] = 1.0
-    pred[:, 7] = [0.3, -0.2, 0.0]
-    out = normalization.action_from_model(pred, stats)
+    norm = normalizer()
+    mean, std = np.arange(8, dtype=np.float32) * 0.1, np.full(8, 2.0, np.float32)
+    mean[7], std[7] = 0, 1
+    norm.action.set(mean, std)
+    pred = torch.zeros(1, 3, 8)
+    pred[..., 0] = 1.0
+    pred[0, :, 7] = torch.tensor([0.3, -0.2, 0.0])
+    out = norm.actions_from_model(pred, None)[0].numpy()
     assert out[:, 7].tolist() == [1.0, -1.0, -1.0]
     np.testing.assert_allclose(out[:, 0], 2.0)
     np.testing.assert_allclose(out[:, 1:7], np.tile(np.arange(1, 7) * 0.1, (3, 1)), rtol=1e-6)
     raw = np.array([[0.1] * 7 + [1.0], [0.3] * 7 + [-1.0]], np.float32)
-    stats = normalization.compute(np.zeros((2, 7)), raw, "joints7")
-    assert stats["action_mean"][7] == 0 and stats["action_std"][7] == 1  # gripper untouched
-    np.testing.assert_allclose(normalization.action_to_model(raw, stats)[:, 7], [1.0, -1.0])
+    fit(norm, action=raw)
+    assert norm.action.mean[7] == 0 and norm.action.std[7] == 1  # gripper untouched
+    np.testing.assert_allclose(norm.actions_to_model(torch.from_numpy(raw)[:, None], None)[:, 0, 7], [1.0, -1.0])
+
+
+def test_residual_targets_are_relative_to_the_current_joints_and_come_back_exactly():
+    norm = normalizer(joint_targets="residual")
+    rng = np.random.default_rng(0)
+    qpos, action = rng.normal(0, 1, (50, 9)).astype(np.float32), rng.normal(0, 1, (50, 4, 8)).astype(np.float32)
+    action[..., 7] = np.sign(action[..., 7])
+    norm.fit(PolicySettings.of(policy_settings(joint_targets="residual")), proprio=qpos[:, :7], goal=np.zeros((50, 4)),
+             action=action, qpos_at=qpos, pose=None, aux=None)
+    assert norm.action.mean.shape == (4, 8)
+    z = norm.actions_to_model(torch.from_numpy(action), torch.from_numpy(qpos))
+    np.testing.assert_allclose(z[..., :7].mean((0,)).numpy(), 0.0, atol=1e-5)  # per (horizon step, joint)
+    back = norm.actions_from_model(z, torch.from_numpy(qpos)).numpy()
+    np.testing.assert_allclose(back, action, atol=1e-5)
 
 
 def test_loss_weights_follow_the_spec_numbers():
@@ -100,107 +130,73 @@ def test_loss_weights_follow_the_spec_numbers():
 def test_global_9dof_normalization_squashes_the_fingers_and_grouped_restores_them():
     rng = np.random.default_rng(0)
     qpos = np.concatenate([rng.normal([0, 0.3, 0, -2.2, 0, 2.5, 0.8], 0.4, (5000, 7)),
-                           rng.uniform(0.018, 0.040, (5000, 1)).repeat(2, 1)], 1)
-    spread = lambda mode: normalization.proprio(qpos, {  # noqa: E731
-        k: v for k, v in normalization.compute(qpos, np.zeros((1, 8)), mode).items() if k.startswith("proprio")
-    })[:, 7:].std(0)
+                           rng.uniform(0.018, 0.040, (5000, 1)).repeat(2, 1)], 1).astype(np.float32)
+
+    def spread(mode):
+        norm = normalizer(proprio=mode)
+        fit(norm, x=qpos, proprio=mode)
+        return norm.proprio(torch.from_numpy(qpos))[:, 7:].std(0).numpy()
+
     assert spread("qpos9_global").max() < 0.01  # fingers nearly constant: the thesis' pathology
     np.testing.assert_allclose(spread("qpos9_grouped"), 1.0, atol=0.01)
 
 
 def test_joints7_tcp_appends_the_tcp_and_zscores_every_dimension():
     rng = np.random.default_rng(0)
-    qpos, tcp = rng.normal(0, 0.5, (500, 9)), rng.normal([0, 0, 0.2], 0.05, (500, 3))
-    x = normalization.proprio_input(qpos, tcp, "joints7_tcp")
-    np.testing.assert_array_equal(x, np.concatenate([qpos[:, :7], tcp], 1))
-    stats = normalization.compute(x, np.zeros((1, 8)), "joints7_tcp")
-    z = normalization.proprio(x, stats)
+    labels = {"qpos": rng.normal(0, 0.5, (500, 9)), "tcp_pos": rng.normal([0, 0, 0.2], 0.05, (500, 3))}
+    policy = PolicySettings.of(policy_settings(proprio="joints7_tcp"))
+    x = observation.proprio(policy, labels)
+    np.testing.assert_allclose(x, np.concatenate([labels["qpos"][:, :7], labels["tcp_pos"]], 1), rtol=1e-6)
+    norm = normalizer(proprio="joints7_tcp")
+    fit(norm, x=x, proprio="joints7_tcp")
+    z = norm.proprio(torch.from_numpy(x))
     np.testing.assert_allclose(z.mean(0), 0, atol=1e-5)
-    np.testing.assert_allclose(z.std(0), 1, atol=1e-4)
-    assert normalization.proprio_input(qpos, None, "joints7").shape == (500, 7)
-    with pytest.raises(ValueError, match="tcp_pos"):
-        normalization.proprio_input(qpos, None, "joints7_tcp")
-    with pytest.raises(ValueError, match="policy.proprio"):
-        normalization.proprio_stats(x, "joints8")
+    np.testing.assert_allclose(z.std(0, unbiased=False), 1, atol=1e-4)
+    assert observation.proprio(PolicySettings.of(policy_settings()), labels).shape == (500, 7)
 
 
 def test_a_joints7_tcp_policy_trains_on_the_stores_tcp_and_keeps_its_stats(tmp_path):
     features, frames = write_stores(tmp_path)
     train(policy_settings(proprio="joints7_tcp", epochs=1, save_every=1), 0, features, frames, tmp_path / "run",
           progress=False)
-    model, stats, policy, _ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0001.pt")
-    assert policy.proprio == "joints7_tcp" and stats["proprio_mean"].shape == (10,)
+    model, policy, _ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0001.pt")
+    assert policy.proprio == "joints7_tcp" and model.normalizer.proprio.mean.shape == (10,)
     assert model.proprio[0].in_features == 10
 
 
-def test_cosine_schedule_decays_from_lr_to_zero_and_constant_stays():
-    cosine = policy_settings(lr=0.002, lr_schedule="cosine")
-    assert learning_rate(cosine, 0, 100) == pytest.approx(0.002)
-    assert learning_rate(cosine, 50, 100) == pytest.approx(0.001)
-    assert learning_rate(cosine, 99, 100) < 1e-6
-    assert learning_rate(policy_settings(lr=0.002), 99, 100) == 0.002
-
-
-def test_a_cosine_run_logs_its_decaying_learning_rate(tmp_path):
-    features, frames = write_stores(tmp_path)
-    log = train(policy_settings(lr_schedule="cosine", epochs=3, save_every=3), 0, features, frames, tmp_path / "run",
-                progress=False)
-    lrs = log["lr"].to_list()
-    assert lrs[0] > lrs[1] > lrs[2] and lrs[2] < 0.05 * policy_settings()["lr"]
-
-
-def test_first_frame_policy_sees_the_episode_start_at_every_step(tmp_path):
-    features, frames = write_stores(tmp_path)
-    policy = policy_settings(first_frame=True, val_episodes=1)
-    tokens, labels, *_ = load_data(policy, features, frames)
-    loader = ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], 8, policy["cameras"], 0)
-    batch = next(loader.epoch(0))
-    starts = labels.start[batch["frame"].numpy()]
-    want = np.stack([np.asarray(tokens[s : s + 1], np.float32)[0] for s in starts])[:, policy["cameras"]]
-    np.testing.assert_array_equal(batch["first"].numpy(), want)
-    torch.manual_seed(0)
-    model = SequencePolicy(policy, 7, 16).eval()
-    out = model(batch["tokens"], batch["proprio"], batch["goal"], batch["first"])
-    assert out.shape == (len(starts), policy["horizon"], 8)
-    assert not torch.allclose(out, model(batch["tokens"], batch["proprio"], batch["goal"], batch["first"] + 1.0))
-    with pytest.raises(ValueError, match="first_frame"):
-        model(batch["tokens"], batch["proprio"], batch["goal"])
+def batch_of(policy, features, frames, n=8):
+    d = data.load(policy, features, frames)
+    return d, next(ChunkWindowLoader(d.tokens, d.labels, policy["window"], policy["horizon"], n, policy["cameras"],
+                                     0).epoch(0))
 
 
 def test_object_readout_learns_the_pose_and_the_action_loss_cannot_reshape_it(tmp_path):
     features, frames = write_stores(tmp_path)
     policy = policy_settings(object_readout=True, epochs=4, save_every=4)
-    tokens, labels, *_ = load_data(policy, features, frames)
-    batch = next(ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], 8, policy["cameras"], 0)
-                 .epoch(0))
+    _, batch = batch_of(policy, features, frames)
     assert batch["readout"].shape == (8, policy["window"], 5)
     torch.manual_seed(0)
     model = SequencePolicy(policy, 7, 16)
-    pred, aux = model(batch["tokens"], batch["proprio"], batch["goal"], aux=True)
-    assert aux["readout"].shape == (8, policy["window"], 5)
-    loss_terms(pred, batch["action"], torch.ones_like(pred), False)["loss"].backward()
+    out = model(batch["tokens"], batch["proprio"], batch["goal"])
+    assert out.readout.shape == (8, policy["window"], 5)
+    loss_terms(out.actions, batch["action"], torch.ones_like(out.actions), False)["loss"].backward()
     assert all(p.grad is None for p in model.object_readout.parameters())  # detached from the action loss
     log = train(policy, 0, features, frames, tmp_path / "run", progress=False)
     assert log["loss_readout"][-1] < log["loss_readout"][0]
 
 
-def test_readout_noise_and_a_given_estimate_change_only_what_the_policy_sees(tmp_path):
+def test_a_given_estimate_changes_only_what_the_policy_sees(tmp_path):
     features, frames = write_stores(tmp_path)
     policy = policy_settings(object_readout=True)
-    tokens, labels, *_ = load_data(policy, features, frames)
-    batch = next(ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], 8, policy["cameras"], 0)
-                 .epoch(0))
+    _, batch = batch_of(policy, features, frames)
     model = SequencePolicy(policy, 7, 16).eval()
     args = (batch["tokens"], batch["proprio"], batch["goal"])
-    clean, clean_aux = model(*args, aux=True)
-    assert torch.equal(clean, model(*args, readout_noise=torch.zeros(3)))
-    noisy, noisy_aux = model(*args, aux=True, readout_noise=torch.full((3,), 0.5))
-    assert not torch.allclose(clean, noisy)  # the policy saw another position
-    assert torch.equal(clean_aux["readout"], noisy_aux["readout"])  # the read-out itself (and its loss) did not move
-    # an estimate given from outside (evaluation.readout_filter) is what the policy sees; the read-out stays
-    assert torch.equal(clean, model(*args, readout_seen=clean_aux["readout"]))
-    shifted, shifted_aux = model(*args, aux=True, readout_seen=clean_aux["readout"] + 0.5)
-    assert not torch.allclose(clean, shifted) and torch.equal(clean_aux["readout"], shifted_aux["readout"])
+    clean = model(*args)
+    # an estimate given from outside (the closed loop's per-step read-outs, or the true pose) is what the policy
+    # sees; the read-out itself (and its loss) stays
+    assert torch.equal(clean.actions, model(*args, readout_seen=clean.readout).actions)
+    shifted = model(*args, readout_seen=clean.readout + 0.5)
+    assert not torch.allclose(clean.actions, shifted.actions) and torch.equal(clean.readout, shifted.readout)
 
 
 def test_without_visual_tokens_the_policy_sees_the_slots_only_through_its_read_out(tmp_path):
@@ -212,12 +208,9 @@ def test_without_visual_tokens_the_policy_sees_the_slots_only_through_its_read_o
     assert seq.shape[1] == policy["window"] * 4  # joints, goal, read-out, action token per step
     fixed = readout.detach()
     # with the read-out's estimate held fixed, nothing else of the tokens reaches the actions
-    torch.testing.assert_close(model(tokens + 1.0, proprio, goal, readout_seen=fixed),
-                               model(tokens, proprio, goal, readout_seen=fixed), rtol=0, atol=0)
-    features, frames = write_stores(tmp_path)
-    log = train({**policy, "epochs": 1, "save_every": 1, "val_episodes": 1}, 0, features, frames, tmp_path / "run",
-                progress=False)
-    assert np.isfinite(log["val_joint_err_rad"].to_numpy()).all()
+    torch.testing.assert_close(model(tokens + 1.0, proprio, goal, readout_seen=fixed).actions,
+                               model(tokens, proprio, goal, readout_seen=fixed).actions, rtol=0, atol=0)
+    assert not torch.allclose(model(tokens + 1.0, proprio, goal).actions, model(tokens, proprio, goal).actions)
 
 
 def test_visual_dropout_blanks_steps_in_training_only():
@@ -228,29 +221,28 @@ def test_visual_dropout_blanks_steps_in_training_only():
     fixed = model.tokens(tokens, proprio, goal)[1].detach()
     model.train()
     # every step blanked: the visual tokens do not reach the actions (the read-out's estimate is held fixed)
-    torch.testing.assert_close(model(tokens + 1.0, proprio, goal, readout_seen=fixed),
-                               model(tokens, proprio, goal, readout_seen=fixed), rtol=0, atol=0)
+    torch.testing.assert_close(model(tokens + 1.0, proprio, goal, readout_seen=fixed).actions,
+                               model(tokens, proprio, goal, readout_seen=fixed).actions, rtol=0, atol=0)
     model.eval()  # evaluation sees every token
-    assert not torch.allclose(model(tokens + 1.0, proprio, goal, readout_seen=fixed),
-                              model(tokens, proprio, goal, readout_seen=fixed))
+    assert not torch.allclose(model(tokens + 1.0, proprio, goal, readout_seen=fixed).actions,
+                              model(tokens, proprio, goal, readout_seen=fixed).actions)
 
 
 @pytest.mark.parametrize("goal", ["2d", "3d"])
 def test_goal_norm_standardizes_the_goal_in_training_and_in_the_checkpoint(tmp_path, goal):
     features, frames = write_stores(tmp_path)
-    plain = load_data(policy_settings(goal=goal), features, frames)
-    assert "goal_mean" not in plain[2]
-    tokens, labels, stats, _, (train_frames, _) = load_data(policy_settings(goal=goal, goal_norm="zscore"), features,
-                                                           frames)
-    np.testing.assert_allclose(labels.goal[train_frames].mean(0), 0.0, atol=1e-4)
-    np.testing.assert_allclose(labels.goal[train_frames].std(0), 1.0, atol=1e-3)
-    # the closed loop standardizes a raw goal with the same statistics
-    np.testing.assert_allclose(normalization.goal(plain[1].goal, stats), labels.goal, atol=1e-5)
-    assert normalization.goal(plain[1].goal, plain[2]) is plain[1].goal
     policy = policy_settings(goal=goal, goal_norm="zscore", epochs=1, save_every=1)
+    d = data.load(policy, features, frames)
     train(policy, 0, features, frames, tmp_path / "run", progress=False)
-    _, saved, *_ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0001.pt")
-    np.testing.assert_allclose(saved["goal_mean"], stats["goal_mean"])
+    model, *_ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0001.pt")
+    z = model.normalizer.goal(torch.from_numpy(d.labels.goal[d.train_frames]))
+    np.testing.assert_allclose(z.mean(0).numpy(), 0.0, atol=1e-4)
+    np.testing.assert_allclose(z.std(0, unbiased=False).numpy(), 1.0, atol=1e-3)
+    train(policy_settings(goal=goal, epochs=1, save_every=1), 0, features, frames, tmp_path / "plain",
+          progress=False)
+    plain, *_ = load_policy(tmp_path / "plain" / "checkpoints" / "epoch_0001.pt")
+    raw = torch.from_numpy(d.labels.goal)
+    assert torch.equal(plain.normalizer.goal(raw), raw)  # goal_norm none: the goal as given
 
 
 def test_windows_pad_at_episode_edges():
@@ -332,8 +324,8 @@ def test_training_writes_checkpoints_and_log_and_a_killed_run_resumes_identicall
         assert torch.equal(a["model"][k], b["model"][k]), k
     assert pl.read_parquet(tmp_path / "resumed" / "train_log.parquet")["epoch"].to_list() == [1, 2, 3, 4]
 
-    model, stats, settings, meta = load_policy(tmp_path / "full" / "checkpoints" / "epoch_0004.pt")
-    assert settings == PolicySettings.of(policy) and meta["K"] == 7 and stats["action_std"].shape == (8,)
+    model, settings, meta = load_policy(tmp_path / "full" / "checkpoints" / "epoch_0004.pt")
+    assert settings == PolicySettings.of(policy) and meta["K"] == 7 and model.normalizer.action.std.shape == (8,)
     assert not model.training
 
 
@@ -353,90 +345,55 @@ def test_policy_settings_name_an_unknown_or_missing_key_and_fill_later_levers():
         PolicySettings.of({**base, "widht": 3})
     with pytest.raises(ValueError, match="missing key.*'window'"):
         PolicySettings.of({k: v for k, v in base.items() if k != "window"})
-    old = {k: v for k, v in base.items() if k not in ("first_frame", "object_readout", "lr_schedule")}
-    s = PolicySettings.of(old)  # a checkpoint written before these keys existed: trained without them
-    assert (s.first_frame, s.object_readout, s.lr_schedule) == (False, False, "constant")
-
-
-def test_readout_tcp_relative_gives_the_token_the_estimate_minus_the_tcp(tmp_path):
-    features, frames = write_stores(tmp_path)
-    policy = policy_settings(object_readout=True, readout_tcp_relative=True, epochs=1, save_every=1, val_episodes=1)
-    tokens, labels, stats, *_ = load_data(policy, features, frames)
-    assert labels.tcp.shape == (len(labels.proprio), 3)
-    batch = next(ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], 8, policy["cameras"], 0)
-                 .epoch(0))
-    assert batch["tcp"].shape == (8, policy["window"], 3)
-    model = SequencePolicy(policy, 7, 16, readout_pose_stats=(stats["readout_mean"], stats["readout_std"])).eval()
-    args = (batch["tokens"], batch["proprio"], batch["goal"])
-    out = model(*args, tcp=batch["tcp"])
-    assert not torch.allclose(out, model(*args, tcp=batch["tcp"] + 0.05))  # the offset reaches the policy
-    with pytest.raises(ValueError, match="readout_tcp_relative"):
-        model(*args)
-    log = train(policy, 0, features, frames, tmp_path / "run", progress=False)  # trains and scores open-loop
-    assert np.isfinite(log["val_joint_err_rad"].to_numpy()).all()
-
-
-def _with_cameras(frames_path, config):
-    """The synthetic store with the configured cameras' matrices, and its goal projected through them."""
-    import zarr
-
-    from ocpipe.sim import envs, projection
-    frames = zarr.open_group(str(frames_path), mode="r+")
-    K, E = envs.approx_camera_matrices({"camera_approx": config["cameras"]}, ["base", "side"], 64)
-    aK, aE = envs.approx_camera_matrices(config, ["base", "side"], 64)
-    goal = frames["goal_pos"][:]
-    for name, data in {"cam_intrinsic": K, "cam_extrinsic": E,
-                       "goal2d_exact": projection.goal2d(goal, K, E, 64),
-                       "goal2d_approx": projection.goal2d(goal, aK, aE, 64)}.items():
-        frames.create_array(name, shape=data.shape, dtype="float32", chunks=data.shape, overwrite=True)[...] = data
-    frames.attrs["resolution"] = 64
-    return K, E
+    old = {k: v for k, v in base.items() if k != "object_readout"}
+    assert PolicySettings.of(old).object_readout is False  # a checkpoint written before the key: trained without it
+    # a retired lever: a checkpoint that names it switched off loads, one trained with it on is refused
+    assert PolicySettings.of({**base, "first_frame": False}) == PolicySettings.of(base)
+    with pytest.raises(ValueError, match=r"\['first_frame'\] are retired levers \(last in commit"):
+        PolicySettings.of({**base, "first_frame": True})
 
 
 @pytest.mark.parametrize("goal,calibration", [("3d", "exact"), ("2d", "exact"), ("2d", "approx")])
 def test_goal_relative_adds_the_goal_minus_the_tcp_as_the_closed_loop_computes_it(tmp_path, default_config, goal,
                                                                                    calibration):
-    from types import SimpleNamespace
-
-    from ocpipe.evaluation.closed_loop import ClosedLoop
     from ocpipe.frames.store import open_store
-    from ocpipe.policy.training import goal_array
     from ocpipe.sim import envs, projection
 
     features, frames_path = write_stores(tmp_path)
     policy = PolicySettings.of(policy_settings(goal=goal, goal_calibration=calibration, goal_relative="tcp"))
-    if calibration == "exact" and goal == "2d":  # a store without its cameras' matrices is named, not guessed at
-        with pytest.raises(ValueError, match="no \\['cam_intrinsic', 'cam_extrinsic'\\].*goal_relative"):
-            goal_array(open_store(frames_path), policy)
-    K, E = _with_cameras(frames_path, default_config)
     frames = open_store(frames_path)
-    plain = goal_array(frames, {**policy.as_dict(), "goal_relative": "none"})
-    rel = goal_array(frames, policy, default_config["camera_approx"])
+    approx = default_config["camera_approx"]
+    cams = observation.store_cameras(policy, frames, approx)
+    labels = {k: frames[k][:] for k in ("qpos", "goal_pos", "tcp_pos")}
+    plain = observation.goal(PolicySettings.of({**policy.as_dict(), "goal_relative": "none"}), labels, cams)
+    rel = observation.goal(policy, labels, cams)
     G = plain.shape[1]
     assert rel.shape == (len(plain), 2 * G)
     np.testing.assert_array_equal(rel[:, :G], plain)
-    tcp = frames["tcp_pos"][:]
+    tcp = labels["tcp_pos"]
     if goal == "3d":
-        np.testing.assert_allclose(rel[:, G:], frames["goal_pos"][:] - tcp, atol=1e-6)
-    else:  # the TCP goes through the goal's own camera model: the approx goal minus the approx TCP
-        cams = (K, E) if calibration == "exact" else envs.approx_camera_matrices(default_config, ["base", "side"], 64)
+        np.testing.assert_allclose(rel[:, G:], labels["goal_pos"] - tcp, atol=1e-6)
+    else:  # the TCP goes through the goal's own camera model
+        if calibration == "exact":
+            np.testing.assert_allclose(plain, frames["goal2d_exact"][:], atol=1e-6)  # the store's own projection
         np.testing.assert_allclose(rel[:, G:], plain - projection.goal2d(tcp, *cams, 64), atol=1e-5)
     assert np.ptp(rel[:, G:] - rel[:, :G], axis=0).min() > 0.01  # the hand moves: not the goal in disguise
-    # the closed loop builds the same input from the simulator's goal, TCP and camera parameters
-    aK, aE = envs.approx_camera_matrices(default_config, ["base", "side"], 64)
-    params = {u: {"intrinsic_cv": torch.from_numpy(K[i])[None], "extrinsic_cv": torch.from_numpy(E[i])[None]}
-              for i, u in enumerate(["b", "s"])}
-    loop = SimpleNamespace(policy=policy, approx_K=aK, approx_E=aE, uids=["b", "s"])
+    # one simulator step gives the same input from its goal, TCP and camera parameters
+    K, E = frames["cam_intrinsic"][:], frames["cam_extrinsic"][:]
+    obs = {"sensor_param": {u: {"intrinsic_cv": torch.from_numpy(K[i])[None],
+                                "extrinsic_cv": torch.from_numpy(E[i])[None]} for i, u in enumerate(["b", "s"])}}
+    step_cams = observation.step_cameras(policy, obs, ["b", "s"],
+                                         envs.approx_camera_matrices(default_config, ["base", "side"], 64))
     for i in (0, 17, 60):
-        got = ClosedLoop._goal(loop, {"sensor_param": params}, frames["goal_pos"][i], tcp[i])
-        np.testing.assert_allclose(got, rel[i], atol=1e-5)
-    with pytest.raises(ValueError, match="camera_approx") if calibration == "approx" else nullcontext():
-        goal_array(frames, policy)
+        step = {k: v[i : i + 1] for k, v in labels.items()}
+        np.testing.assert_array_equal(observation.goal(policy, step, step_cams)[0], rel[i])
+    if calibration == "approx":
+        with pytest.raises(ValueError, match="camera_approx"):
+            observation.store_cameras(policy, frames, None)
     # the model takes the wider goal, and training runs end to end
     model = SequencePolicy(policy, 7, 16)
     tokens, proprio, _ = inputs(policy.as_dict())
-    assert model(tokens, proprio, torch.randn(3, policy.window, 2 * G)).shape == (3, policy.horizon, 8)
-    train(policy, 0, features, frames_path, tmp_path / "run", progress=False,
-          camera_approx=default_config["camera_approx"])
-    _, stats, saved, _ = load_policy(tmp_path / "run" / "checkpoints" / f"epoch_{policy.epochs:04d}.pt")
+    assert model(tokens, proprio, torch.randn(3, policy.window, 2 * G)).actions.shape == (3, policy.horizon, 8)
+    train(policy, 0, features, frames_path, tmp_path / "run", progress=False, camera_approx=approx)
+    _, saved, _ = load_policy(tmp_path / "run" / "checkpoints" / f"epoch_{policy.epochs:04d}.pt")
     assert saved.goal_relative == "tcp"

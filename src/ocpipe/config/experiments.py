@@ -48,20 +48,14 @@ def problems(policy: dict) -> list[str]:
             out.append(f"  {key}.goal: the 'state' control renders no camera, so it takes goal 'none' or '3d'")
         if list(policy["cameras"]) != [0]:
             out.append(f"  {key}.cameras: the 'state' control has one token stream: cameras [0]")
-    if policy.get("slot_geometry") and policy["encoder"] not in ("slots_ssl", "spot"):
-        out.append(f"  {key}.slot_geometry: needs a slot encoder with masks (slots_ssl or spot)")
     if policy.get("readout_scenes"):
         if not policy.get("object_readout"):
             out.append(f"  {key}.readout_scenes: fits the object read-out, so it needs object_readout: true")
-        if policy["encoder"] == "state" or policy.get("slot_geometry"):
-            out.append(f"  {key}.readout_scenes: needs an image encoder without slot_geometry (scenes store tokens "
-                       "carry no mask geometry)")
+        if policy["encoder"] == "state":
+            out.append(f"  {key}.readout_scenes: needs an image encoder (the control has no read-out to fit)")
     if policy.get("visual_head") == "none" and not policy.get("object_readout"):
         out.append(f"  {key}.visual_head: 'none' leaves the policy only the object read-out's token, so it needs "
                    "object_readout: true (or visual_head: tokens)")
-    for name in ("readout_tcp_relative", "readout_noise"):
-        if policy.get(name) and not policy.get("object_readout"):
-            out.append(f"  {key}.{name}: acts on the object read-out's token, so it needs object_readout: true")
     return out
 
 

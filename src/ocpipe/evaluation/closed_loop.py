@@ -19,14 +19,12 @@ import torch
 from tqdm import tqdm
 
 from ..encoders import registry
-from ..encoders.state import state_tokens
 from ..features.encode import sha256
-from ..features.slot_geometry import full_image_windows, slot_geometry
 from ..frames.store import open_store
-from ..policy import normalization
+from ..policy import observation
+from ..policy.checkpoint import load_policy
 from ..policy.settings import PolicySettings
-from ..policy.training import load_policy
-from ..sim import envs, projection
+from ..sim import envs
 from ..util.devices import to_device
 
 log = logging.getLogger(__name__)
@@ -81,7 +79,7 @@ class ClosedLoop:
     def __init__(self, checkpoint: str | Path, config: dict, frames_store: str | Path,
                  encoder_checkpoint: str | Path | None, device: str = "cpu", expected: dict | None = None):
         self.device = torch.device(device)
-        self.model, self.stats, self.policy, self.meta = load_policy(checkpoint, self.device)
+        self.model, self.policy, self.meta = load_policy(checkpoint, self.device)
         p = self.policy
         check_checkpoint(checkpoint, p, self.meta, frames_store, encoder_checkpoint, expected)
         self.encoder = to_device(registry.build(p.encoder, config["encoders"], frames_store, encoder_checkpoint),
@@ -95,9 +93,7 @@ class ClosedLoop:
         # an encoder that reads the simulator's state needs no image: render nothing
         self.env = envs.make_env(self.task, config, None if self.reads_labels else p.cams, p.resolution,
                                 obs_mode="rgb")
-        self.windows = getattr(self.encoder, "windows", full_image_windows(len(self.uids), p.resolution))
-        self.residual = p.joint_targets == "residual"
-        self.approx_K, self.approx_E = envs.approx_camera_matrices(config, self.camera_names, p.resolution)
+        self.approx = envs.approx_camera_matrices(config, self.camera_names, p.resolution)
         ev = config["evaluation"]
         self.cap = ev["episode_cap"][self.task]
         self.execute = min(ev["execute_actions"], p.horizon)
@@ -113,43 +109,22 @@ class ClosedLoop:
         return {"episode_cap": self.cap, "execute_actions": self.execute, "temporal_ensemble": float(self.ensemble),
                 "readout_filter": self.readout_filter, "trivial_steps": self.trivial_steps}
 
-    def _goal(self, obs, goal_pos: np.ndarray, tcp_pos: np.ndarray) -> np.ndarray:
-        """The goal input as training.goal_array builds it from the frames store (before goal_norm)."""
-        kind = self.policy.goal
-        if kind == "none":
-            return np.zeros(0, np.float32)
-        points = np.stack([goal_pos, tcp_pos]).astype(np.float64)
-        if kind == "2d":
-            if self.policy.goal_calibration == "approx":
-                K, E = self.approx_K, self.approx_E
-            else:
-                params = obs["sensor_param"]
-                K = np.stack([params[u]["intrinsic_cv"][0].cpu().numpy() for u in self.uids])
-                E = np.stack([params[u]["extrinsic_cv"][0].cpu().numpy() for u in self.uids])
-            points = projection.goal2d(points, K, E, self.policy.resolution)
-        goal, hand = points.astype(np.float32)
-        return np.concatenate([goal, goal - hand]) if self.policy.goal_relative == "tcp" else goal
-
     def _tokens(self, obs, labels: dict) -> torch.Tensor:
         """This step's visual tokens (C, K, D), exactly as the policy saw them in training."""
         if self.reads_labels:
             return torch.from_numpy(self.encoder.tokens_from_labels(labels))[self.policy.cameras]
         rgb = torch.stack([obs["sensor_data"][u]["rgb"][0] for u in self.uids])[None].cpu()
-        tokens, masks = self.encoder.encode(rgb.to(self.device))
-        # the policy was trained on tokens as stored (float16 by default): round the same way
-        tokens = tokens.cpu().to(getattr(torch, self.meta.get("tokens_dtype", "float32"))).float()
-        if self.policy.slot_geometry:
-            tokens = torch.cat([tokens, slot_geometry(masks, self.windows, self.policy.resolution).cpu()], -1)
-        return tokens[0][self.policy.cameras]
+        tokens, _ = self.encoder.encode(rgb.to(self.device))
+        return observation.as_stored(tokens.cpu(), self.meta.get("tokens_dtype", "float32"))[0][self.policy.cameras]
 
     @torch.inference_mode()
     def _observe(self, obs, first: bool) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:
+        """-> this step's raw inputs (tokens (C, K, D), proprio (P,), goal (G,)) and its labels."""
         labels = envs.task_readouts(self.env, after_reset=first)
-        tokens = self._tokens(obs, labels)
-        x = normalization.proprio_input(labels["qpos"], labels["tcp_pos"], self.policy.proprio)
-        proprio = normalization.proprio(x[None], self.stats)[0]
-        return tokens, proprio, normalization.goal(self._goal(obs, labels["goal_pos"], labels["tcp_pos"]),
-                                                     self.stats), labels
+        rows = {k: np.asarray(v)[None] for k, v in labels.items()}
+        cameras = observation.step_cameras(self.policy, obs, self.uids, self.approx)
+        return (self._tokens(obs, labels), observation.proprio(self.policy, rows)[0],
+                observation.goal(self.policy, rows, cameras)[0], labels)
 
     @torch.inference_mode()
     def object_pose(self, tokens: torch.Tensor) -> torch.Tensor | None:
@@ -160,16 +135,15 @@ class ClosedLoop:
 
     def true_pose(self, labels: dict) -> torch.Tensor:
         """The simulator's object pose, standardized as the read-out's: the read-out a perfect perception gives."""
-        true = state_tokens(labels["obj_pos"], labels["obj_quat"]).reshape(-1)
-        return torch.from_numpy((true - self.stats["readout_mean"]) / self.stats["readout_std"]).float()
+        pose = observation.object_pose({k: np.asarray(labels[k])[None] for k in ("obj_pos", "obj_quat")})[0]
+        return self.model.normalizer.pose(torch.from_numpy(pose).to(self.device)).cpu()
 
     def object_position(self, pose: torch.Tensor | None) -> list[float]:
         """A standardized read-out pose -> the object's position (m; NaN without a read-out): logged per step, so
         the closed-loop perception error can be set beside the probes'."""
         if pose is None:
             return [float("nan")] * 3
-        pos = pose[:3].numpy() * self.stats["readout_std"][:3] + self.stats["readout_mean"][:3]
-        return pos.astype(float).tolist()
+        return self.model.normalizer.pose.invert(pose.to(self.device))[:3].cpu().numpy().astype(float).tolist()
 
     @torch.inference_mode()
     def episode(self, seed: int) -> tuple[dict, dict[str, list]]:
@@ -178,30 +152,21 @@ class ClosedLoop:
         window: deque = deque(maxlen=T)
         steps: dict[str, list] = {k: [] for k in ("step", "action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos",
                                                    "obj_est", "obj_seen", "reward")}
-        estimate = StaticObjectFilter() if self.readout_filter == "static_mean" else None
-        action = None
         chunks: deque = deque(maxlen=-(-self.policy.horizon // self.execute))  # (query step, (H, 8) actions)
         success, total = False, 0.0
         for t in range(self.cap):
             tokens, proprio, goal, labels = self._observe(obs, first=t == 0)
-            if t == 0:
-                first = tokens[None].to(self.device)  # the episode's first frame, for first_frame policies
             pose = self.object_pose(tokens)
-            seen = pose
-            if estimate is not None and pose is not None:
-                seen = estimate(pose, gripper_closed=action is not None and action[7] < 0)
-            if self.readout_filter == "true_pose" and pose is not None:
-                seen = self.true_pose(labels)
-            window.append((tokens, proprio, goal, labels["tcp_pos"].astype(np.float32),
-                           seen if seen is not None else torch.zeros(0)))
+            seen = self.true_pose(labels) if self.readout_filter == "true_pose" and pose is not None else pose
+            window.append((tokens, proprio, goal, seen if seen is not None else torch.zeros(0)))
             while len(window) < T:
                 window.appendleft(window[0])
             if t % self.execute == 0:  # execute <= H: a chunk always covers the steps until the next query
-                batch = [torch.stack([torch.as_tensor(w[i]) for w in window])[None].to(self.device) for i in range(5)]
-                pred = self.model(*batch[:3], first, tcp=batch[3],
-                                  readout_seen=batch[4] if seen is not None else None)[0].cpu().numpy()
-                qpos = labels["qpos"][:7] if self.residual else None
-                chunks.append((t, normalization.action_from_model(pred, self.stats, qpos=qpos)))
+                batch = [torch.stack([torch.as_tensor(w[i]) for w in window])[None].to(self.device) for i in range(4)]
+                # each step's read-out as computed when its frame arrived (or the true pose): not recomputed
+                out = self.model(*batch[:3], readout_seen=batch[3] if seen is not None else None)
+                qpos = torch.from_numpy(labels["qpos"])[None].to(self.device)
+                chunks.append((t, self.model.normalizer.actions_from_model(out.actions, qpos)[0].cpu().numpy()))
             if self.ensemble:
                 action = ensemble_action(chunks, t, self.ensemble)
             else:
@@ -222,26 +187,6 @@ class ClosedLoop:
         row = {"seed": seed, "success": success, "steps": n, "trivial": success and n < self.trivial_steps,
                "return": total}
         return row, steps
-
-
-class StaticObjectFilter:
-    """The object estimate under a static-object prior: until the hand grips, the object lies where it lies, so
-    every frame since the gripper last opened is a new look at the same pose and their mean is the estimate (the
-    read-out's per-frame errors are largely independent across the arm's changing views: the mean of the frames
-    so far halves the error near the hand, docs/measurements.md). While the gripper is closed the object may move
-    with the hand: the frame's own estimate passes through, and the mean restarts when the gripper opens."""
-
-    def __init__(self):
-        self.total: torch.Tensor | None = None
-        self.count = 0
-
-    def __call__(self, pose: torch.Tensor, gripper_closed: bool) -> torch.Tensor:
-        if gripper_closed:
-            self.total, self.count = None, 0
-            return pose
-        self.total = pose.clone() if self.total is None else self.total + pose
-        self.count += 1
-        return self.total / self.count
 
 
 def ensemble_action(chunks, t: int, decay: float) -> np.ndarray:

@@ -4,7 +4,6 @@ Features are stored per frame (the thesis stored 5x-duplicated windows); the pol
 index. Layout of ``results/features/{task}_{cams}_{res}_{encoder}.zarr``:
   tokens (N, C, K, D) float16   visual tokens per camera
   masks  (N, C, K, h, w) float16 slot attention masks (slot encoders only)
-  geometry (N, C, K, 5) float32 each slot mask's centroid, area and spread (slot encoders only; slot_geometry.py)
   attrs: encoder, checkpoint_sha256, frames_store, frames_store_attrs (task, cameras, resolution, episode_*),
          and the encoder's own (slots_ssl: crop_windows, the (x0, y0, size) pixel window each mask covers)."""
 
@@ -15,7 +14,6 @@ import time
 from pathlib import Path
 from typing import Protocol
 
-import numpy as np
 import torch
 import zarr
 from tqdm import tqdm
@@ -23,7 +21,6 @@ from tqdm import tqdm
 from ..frames.store import open_store
 from ..util.atomic import atomic_path
 from ..util.devices import pick_device, to_device
-from .slot_geometry import full_image_windows, slot_geometry
 
 
 class FrozenEncoder(Protocol):
@@ -59,9 +56,7 @@ def encode_store(encoder: FrozenEncoder, frames_path: str | Path, out_path: str 
     t0 = time.perf_counter()
     with atomic_path(out_path) as tmp, torch.inference_mode():
         root = zarr.open_group(str(tmp), mode="w", zarr_format=3)
-        tokens_arr = masks_arr = geometry_arr = None
-        C, R = rgb.shape[1], int(frames.attrs["resolution"])
-        windows = getattr(encoder, "windows", full_image_windows(C, R))
+        tokens_arr = masks_arr = None
         bar = tqdm(
             total=N, desc=f"encode {Path(frames_path).name} [{encoder.name}]", unit="frame", disable=not progress
         )
@@ -71,11 +66,9 @@ def encode_store(encoder: FrozenEncoder, frames_path: str | Path, out_path: str 
             block = torch.from_numpy(rgb[lo : lo + step]).to(dev)
             outs = [encoder.encode(block[i : i + batch_size]) for i in range(0, len(block), batch_size)]
             tokens = torch.cat([o[0] for o in outs]).cpu().numpy().astype(dtype)
-            masks = geometry = None
+            masks = None
             if outs[0][1] is not None:
-                mask_t = torch.cat([o[1] for o in outs])
-                geometry = slot_geometry(mask_t, windows, R).cpu().numpy()
-                masks = mask_t.cpu().numpy().astype(dtype)
+                masks = torch.cat([o[1] for o in outs]).cpu().numpy().astype(dtype)
             if tokens_arr is None:
                 tokens_arr = root.create_array(
                     "tokens", shape=(N, *tokens.shape[1:]), dtype=dtype, chunks=(chunk_frames, *tokens.shape[1:])
@@ -84,16 +77,9 @@ def encode_store(encoder: FrozenEncoder, frames_path: str | Path, out_path: str 
                     masks_arr = root.create_array(
                         "masks", shape=(N, *masks.shape[1:]), dtype=dtype, chunks=(chunk_frames, *masks.shape[1:])
                     )
-                    geometry_arr = root.create_array(
-                        "geometry",
-                        shape=(N, *geometry.shape[1:]),
-                        dtype="float32",
-                        chunks=(chunk_frames, *geometry.shape[1:]),
-                    )
             tokens_arr[lo : lo + len(tokens)] = tokens
             if masks_arr is not None:
                 masks_arr[lo : lo + len(masks)] = masks
-                geometry_arr[lo : lo + len(geometry)] = geometry
             bar.update(len(block))
         bar.close()
         seconds = time.perf_counter() - t0
@@ -128,29 +114,6 @@ def _write_label_tokens(encoder, frames: zarr.Group, frames_path, out_path, chun
         root["tokens"][...] = tokens
         root.attrs.update({**_provenance(encoder, frames, frames_path), **getattr(encoder, "extra_attrs", {})})
     return {"frames": len(tokens), "seconds": 0.0, "frames_per_second": None}
-
-
-class PolicyTokens:
-    """The visual inputs a policy reads, sliceable along frames like a Zarr array: the stored tokens, with each
-    slot's geometry appended when ``geometry`` is set. (N, C, K, D [+ 5]) float32."""
-
-    def __init__(self, feats: zarr.Group, geometry: bool, source: str = ""):
-        if geometry and "geometry" not in feats:
-            raise ValueError(
-                f"{source}: policy.slot_geometry needs slot masks, and this features store has no "
-                "'geometry' array (encoder without masks, or a store built before it existed: rebuild it)"
-            )
-        self.tokens, self.geometry = feats["tokens"], feats["geometry"] if geometry else None
-        extra = self.geometry.shape[-1] if geometry else 0
-        self.shape = (*self.tokens.shape[:-1], self.tokens.shape[-1] + extra)
-        self.chunks = self.tokens.chunks
-        self.dtype = self.tokens.dtype
-
-    def __getitem__(self, index) -> np.ndarray:
-        tokens = np.asarray(self.tokens[index], dtype=np.float32)
-        if self.geometry is None:
-            return tokens
-        return np.concatenate([tokens, np.asarray(self.geometry[index], dtype=np.float32)], axis=-1)
 
 
 def open_features(path: str | Path) -> zarr.Group:

@@ -9,6 +9,13 @@ from __future__ import annotations
 
 from dataclasses import MISSING, asdict, dataclass, fields
 
+# Levers that were measured, lost and were removed, with the value that means "off" (the study's) and the last
+# commit that had them (docs/measurements.md has their figures). A checkpoint that names one at that value loads;
+# one trained with it on cannot be rebuilt by this code.
+RETIRED = {"slot_geometry": False, "proprio_noise": 0.0, "lr_schedule": "constant", "first_frame": False,
+           "readout_noise": 0.0, "readout_tcp_relative": False}
+RETIRED_AT = "19a73bd"
+
 
 @dataclass(frozen=True)
 class PolicySettings:
@@ -44,18 +51,12 @@ class PolicySettings:
     device: str  # auto | cpu | cuda
     # departures from the study's recipe (config/thesis.yaml switches each off)
     token_norm: str = "none"  # none | zscore: standardize the visual token dimensions
-    slot_geometry: bool = False  # append each slot mask's centroid, area and spread to its token
     aux_object_weight: float = 0.0  # weight of the auxiliary loss predicting the object's position
-    proprio_noise: float = 0.0  # std of the noise on the z-scored joint inputs in training
     joint_targets: str = "absolute"  # absolute | residual (targets minus the current joints)
-    lr_schedule: str = "constant"  # constant | cosine
-    first_frame: bool = False  # the episode's first-frame tokens before the T steps
     object_readout: bool = False  # a token per step: the object's pose read off the frozen tokens
     readout_scenes: bool = False  # fit that read-out first on the demo frames plus extra scenes, then freeze it
     readout_standardize: str = "token_dims"  # token_dims | element: how the read-out's input is standardized
     readout_yaw_weight: float = 1.0  # weight of the yaw terms in the read-out's loss (position's: 1)
-    readout_noise: float = 0.0  # std (m) of noise on the read-out's position as the policy sees it in training
-    readout_tcp_relative: bool = False  # the read-out's token also holds its object position minus the TCP
     goal_norm: str = "none"  # none | zscore: standardize the goal input with training-set statistics
     goal_relative: str = "none"  # none | tcp: the goal input also holds the goal minus the TCP (in the goal's frame)
     visual_dropout: float = 0.0  # chance that a training step's visual tokens are blanked (the read-out stays)
@@ -68,6 +69,11 @@ class PolicySettings:
         if isinstance(settings, cls):
             return settings
         known = {f.name for f in fields(cls)}
+        on = sorted(k for k, off in RETIRED.items() if k in settings and settings[k] != off)
+        if on:
+            raise ValueError(f"policy settings: {on} are retired levers (last in commit {RETIRED_AT}); this code "
+                             "cannot run a policy trained with them on")
+        settings = {k: v for k, v in settings.items() if k not in RETIRED}
         unknown = sorted(set(settings) - known)
         if unknown:
             raise ValueError(f"policy settings: unknown key(s) {unknown} (known: {sorted(known)})")

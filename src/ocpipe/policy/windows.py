@@ -18,20 +18,17 @@ import torch
 
 @dataclass
 class Labels:
-    """Per-frame arrays in RAM (already normalized) and the episode bounds of every frame."""
+    """Per-frame raw inputs and targets in RAM (policy.observation; the model's Normalizer standardizes them) and
+    the episode bounds of every frame."""
 
     proprio: np.ndarray  # (N, P)
     goal: np.ndarray  # (N, G), G = 0 for no goal
-    action: np.ndarray  # (N, 8): normalized absolute targets, or raw ones when ``residual`` is set
+    action: np.ndarray  # (N, 8): the expert's absolute joint targets and gripper command
     start: np.ndarray  # (N,) first frame of the frame's episode
     end: np.ndarray  # (N,) one past its last frame
-    # residual targets: (base (N, 8) the current joints, mean (H, 8), std (H, 8)); target = (a - base - mean) / std
-    residual: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-    aux: np.ndarray | None = None  # (N, A) auxiliary per-frame targets (normalized object position), training only
-    readout: np.ndarray | None = None  # (N, 5) normalized object pose tokens, the object read-out's targets
-    tcp: np.ndarray | None = None  # (N, 3) the TCP's position (m), for readout_tcp_relative policies
-    # first-frame context: (episode start frames (E,), their visual tokens (E, C, K, D)), for `first_frame` policies
-    first: tuple[np.ndarray, np.ndarray] | None = None
+    qpos: np.ndarray | None = None  # (N, 9) the robot's joints: what residual targets are relative to
+    aux: np.ndarray | None = None  # (N, 3) the object's position, the auxiliary head's target
+    readout: np.ndarray | None = None  # (N, 5) the object's pose, the object read-out's target
 
     @classmethod
     def from_offsets(cls, offsets, proprio, goal, action, **extra) -> "Labels":
@@ -42,14 +39,6 @@ class Labels:
                 f"episode {int(np.argmax(lengths <= 0))} has no frames (episode_offsets {offsets.tolist()})"
             )
         return cls(proprio, goal, action, np.repeat(offsets[:-1], lengths), np.repeat(offsets[1:], lengths), **extra)
-
-    def targets(self, frames: np.ndarray, act: np.ndarray) -> np.ndarray:
-        """(n, H, 8) model-space action targets of current frames ``frames`` with target frames ``act``."""
-        a = self.action[act]
-        if self.residual is None:
-            return a
-        base, mean, std = self.residual
-        return ((a - base[frames][:, None] - mean) / std).astype(np.float32)
 
 
 def window_frames(frames: np.ndarray, labels: Labels, T: int) -> np.ndarray:
@@ -78,20 +67,16 @@ def make_batch(
         "tokens": torch.from_numpy(np.ascontiguousarray(tokens[win - base][:, :, cameras], dtype=np.float32)),
         "proprio": torch.from_numpy(labels.proprio[win]),
         "goal": torch.from_numpy(labels.goal[win]),
-        "action": torch.from_numpy(labels.targets(frames, act)),
+        "action": torch.from_numpy(labels.action[act]),
         "progress": torch.from_numpy(progress(act, frames, labels)),
         "frame": torch.from_numpy(frames),
     }
+    if labels.qpos is not None:
+        batch["qpos"] = torch.from_numpy(labels.qpos[frames])
     if labels.aux is not None:
         batch["aux"] = torch.from_numpy(labels.aux[frames])
     if labels.readout is not None:
         batch["readout"] = torch.from_numpy(labels.readout[win])
-    if labels.tcp is not None:
-        batch["tcp"] = torch.from_numpy(labels.tcp[win])
-    if labels.first is not None:
-        starts, first = labels.first
-        episode = np.searchsorted(starts, labels.start[frames])
-        batch["first"] = torch.from_numpy(np.ascontiguousarray(first[episode][:, cameras], dtype=np.float32))
     return batch
 
 

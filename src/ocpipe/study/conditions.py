@@ -13,11 +13,10 @@ from .registry import TABLES
 
 # The study's recipe, for the settings this pipeline can change (the study's sizes are config/thesis.yaml's)
 STUDY_POLICY = {
-    "token_norm": "none", "slot_geometry": False, "aux_object_weight": 0.0, "proprio_noise": 0.0,
-    "joint_targets": "absolute", "lr_schedule": "constant", "first_frame": False, "object_readout": False,
+    "token_norm": "none", "aux_object_weight": 0.0, "joint_targets": "absolute", "object_readout": False,
     "readout_scenes": False, "visual_dropout": 0.0, "goal_norm": "none", "goal_relative": "none",
-    "readout_noise": 0.0, "readout_tcp_relative": False, "visual_head": "tokens", "action_head": "linear",
-    "gripper": "regression", "width": 256, "layers": 8, "heads": 8, "lr": 0.0001,
+    "visual_head": "tokens", "action_head": "linear", "gripper": "regression", "width": 256, "layers": 8,
+    "heads": 8, "lr": 0.0001,
 }
 STUDY_EVALUATION = {"execute_actions": 5, "temporal_ensemble": 0.0, "readout_filter": "none",
                     "episode_cap": {"PickCube-v1": 300, "StackCube-v1": 300}}
