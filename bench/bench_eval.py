@@ -66,7 +66,7 @@ def worker(mode: str, setting: dict, checkpoint: str, steps: int) -> dict:
         def step():
             tokens, proprio, goal, labels = loop._observe(obs, first=False)
             seq = [
-                torch.as_tensor(x)[None, None].repeat(1, loop.policy.window, *([1] * torch.as_tensor(x).dim()))
+                torch.as_tensor(x)[None, None].repeat(1, loop.policy.network.window, *([1] * torch.as_tensor(x).dim()))
                 for x in (tokens, proprio, goal)
             ]
             loop.model(*seq, torch.as_tensor(tokens)[None])

@@ -69,7 +69,8 @@ def test_openloop_error_is_zero_for_a_policy_that_returns_the_expert_chunk(tmp_p
         def forward(self, tokens, proprio, goal):  # the batch's own targets, found by its proprio (joints)
             qpos = torch.from_numpy(d.labels.qpos)
             frames_ = [int(torch.nonzero((torch.from_numpy(d.labels.proprio) == p[-1]).all(1))[0]) for p in proprio]
-            want = torch.from_numpy(d.labels.action[action_frames(np.array(frames_), d.labels, settings.horizon)])
+            chunk = action_frames(np.array(frames_), d.labels, settings.network.horizon)
+            want = torch.from_numpy(d.labels.action[chunk])
             return type("Out", (), {"actions": model.normalizer.actions_to_model(want, qpos[frames_])})
 
     err = openloop_error(Oracle(), d, settings, "cpu")

@@ -69,14 +69,14 @@ def test_dino_readouts_of_any_token_count(K, D):
 
 def normalizer(**overrides) -> Normalizer:
     policy = PolicySettings.of(policy_settings(**overrides))
-    return Normalizer(policy, 7, 16, len(policy.cameras), PROPRIO_DIMS[policy.proprio], 4)
+    return Normalizer(policy, 7, 16, len(policy.stores.cameras), PROPRIO_DIMS[policy.network.proprio], 4)
 
 
 def fit(norm: Normalizer, x=None, action=None, **overrides):
     """Fit on proprio inputs ``x`` and absolute actions, the other inputs zero."""
     policy = PolicySettings.of(policy_settings(**overrides))
     n = len(x if x is not None else action)
-    norm.fit(policy, proprio=np.zeros((n, PROPRIO_DIMS[policy.proprio])) if x is None else x,
+    norm.fit(policy, proprio=np.zeros((n, PROPRIO_DIMS[policy.network.proprio])) if x is None else x,
              goal=np.zeros((n, 4), np.float32), action=np.zeros((n, 8), np.float32) if action is None else action,
              qpos_at=np.zeros((n, 9), np.float32), pose=None, aux=None)
 
@@ -160,7 +160,7 @@ def test_a_joints7_tcp_policy_trains_on_the_stores_tcp_and_keeps_its_stats(tmp_p
     train(policy_settings(proprio="joints7_tcp", epochs=1, save_every=1), 0, features, frames, tmp_path / "run",
           progress=False)
     model, policy, _ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0001.pt")
-    assert policy.proprio == "joints7_tcp" and model.normalizer.proprio.mean.shape == (10,)
+    assert policy.network.proprio == "joints7_tcp" and model.normalizer.proprio.mean.shape == (10,)
     assert model.proprio[0].in_features == 10
 
 
@@ -346,7 +346,7 @@ def test_policy_settings_name_an_unknown_or_missing_key_and_fill_later_levers():
     with pytest.raises(ValueError, match="missing key.*'window'"):
         PolicySettings.of({k: v for k, v in base.items() if k != "window"})
     old = {k: v for k, v in base.items() if k != "object_readout"}
-    assert PolicySettings.of(old).object_readout is False  # a checkpoint written before the key: trained without it
+    assert PolicySettings.of(old).readout.enabled is False  # a checkpoint from before the key: trained without it
     # a retired lever: a checkpoint that names it switched off loads, one trained with it on is refused
     assert PolicySettings.of({**base, "first_frame": False}) == PolicySettings.of(base)
     with pytest.raises(ValueError, match=r"\['first_frame'\] are retired levers \(last in commit"):
@@ -393,7 +393,8 @@ def test_goal_relative_adds_the_goal_minus_the_tcp_as_the_closed_loop_computes_i
     # the model takes the wider goal, and training runs end to end
     model = SequencePolicy(policy, 7, 16)
     tokens, proprio, _ = inputs(policy.as_dict())
-    assert model(tokens, proprio, torch.randn(3, policy.window, 2 * G)).actions.shape == (3, policy.horizon, 8)
+    out = model(tokens, proprio, torch.randn(3, policy.network.window, 2 * G))
+    assert out.actions.shape == (3, policy.network.horizon, 8)
     train(policy, 0, features, frames_path, tmp_path / "run", progress=False, camera_approx=approx)
-    _, saved, _ = load_policy(tmp_path / "run" / "checkpoints" / f"epoch_{policy.epochs:04d}.pt")
-    assert saved.goal_relative == "tcp"
+    _, saved, _ = load_policy(tmp_path / "run" / "checkpoints" / f"epoch_{policy.training.epochs:04d}.pt")
+    assert saved.goal.relative == "tcp"

@@ -13,7 +13,7 @@ from typing import Any
 import yaml
 
 from ..util.atomic import atomic_path
-from .validate import REPO_ROOT, SCHEMA_PATH
+from .validate import REPO_ROOT, SCHEMA_PATH, load_schema
 
 DEFAULTS_PATH = REPO_ROOT / "config" / "config.yaml"
 README_PATH = REPO_ROOT / "config" / "README.md"
@@ -37,8 +37,7 @@ descriptions and `config/config.yaml`: do not edit it by hand."""
 
 def load_inputs(schema_path: str | Path = SCHEMA_PATH, defaults_path: str | Path = DEFAULTS_PATH) -> tuple[dict, dict]:
     """The schema and the default profile, as render() takes them."""
-    with Path(schema_path).open() as fh:
-        schema = yaml.safe_load(fh)
+    schema = load_schema(schema_path)
     with Path(defaults_path).open() as fh:
         defaults = yaml.safe_load(fh) or {}
     return schema, defaults

@@ -9,6 +9,7 @@ from pathlib import Path
 import jsonschema
 import yaml
 
+from ..policy.settings import schema_properties
 from .errors import ConfigError
 from .experiments import problems as policy_problems
 from .experiments import resolve
@@ -76,10 +77,21 @@ def _unknown_keys(error: jsonschema.ValidationError) -> list[str]:
     return out
 
 
-def validate(config: dict, schema_path: str | Path = SCHEMA_PATH) -> None:
-    """Raise ConfigError naming every offending key, what it holds and what is allowed."""
+def load_schema(schema_path: str | Path = SCHEMA_PATH) -> dict:
+    """The config schema: the file, with the policy keys (config `policy` and each experiment's overrides) filled
+    in from their declarations in ocpipe.policy.settings."""
     with Path(schema_path).open() as fh:
         schema = yaml.safe_load(fh)
+    props, required = schema_properties()
+    top = schema["properties"]
+    top["policy"] |= {"properties": props, "required": required}
+    top["experiments"]["additionalProperties"]["properties"] = props
+    return schema
+
+
+def validate(config: dict, schema_path: str | Path = SCHEMA_PATH) -> None:
+    """Raise ConfigError naming every offending key, what it holds and what is allowed."""
+    schema = load_schema(schema_path)
     validator = jsonschema.Draft202012Validator(schema)
     errors = sorted(validator.iter_errors(config), key=lambda e: list(map(str, e.absolute_path)))
     problems = []

@@ -39,20 +39,20 @@ def check_checkpoint(checkpoint, policy: PolicySettings | dict, meta: dict, fram
     policy = PolicySettings.of(policy)
     if expected is not None:
         for key in ("task", "encoder", "cams", "resolution"):
-            got = getattr(policy, key)
+            got = getattr(policy.stores, key)
             if got != expected.get(key):
                 raise ValueError(
                     f"{checkpoint}: trained for {key} {got!r}, but experiment {expected.get('name')!r} "
                     f"has {key} {expected.get(key)!r}: the checkpoint belongs to another experiment; retrain "
                     f"(delete {Path(checkpoint).parent} and rerun the workflow)")
-    if meta.get("encoder") not in (None, policy.encoder):
+    if meta.get("encoder") not in (None, policy.stores.encoder):
         raise ValueError(
-            f"{checkpoint}: its policy names encoder {policy.encoder!r} but it was trained on {meta['encoder']!r} "
-            f"features ({meta.get('features_store')}): delete that features store and the run's checkpoints and "
+            f"{checkpoint}: its policy names encoder {policy.stores.encoder!r} but it was trained on "
+            f"{meta['encoder']!r} features ({meta.get('features_store')}): delete that features store and the run's checkpoints and "
             "rerun the workflow to rebuild and retrain")
     attrs = open_store(frames_store).attrs.asdict()
     for key, attr in (("task", "task"), ("cams", "camera_set"), ("resolution", "resolution")):
-        got = getattr(policy, key)
+        got = getattr(policy.stores, key)
         if attr in attrs and got != attrs[attr]:
             raise ValueError(
                 f"{checkpoint}: trained for {key} {got!r}, but {frames_store} is a frames store of "
@@ -82,21 +82,21 @@ class ClosedLoop:
         self.model, self.policy, self.meta = load_policy(checkpoint, self.device)
         p = self.policy
         check_checkpoint(checkpoint, p, self.meta, frames_store, encoder_checkpoint, expected)
-        self.encoder = to_device(registry.build(p.encoder, config["encoders"], frames_store, encoder_checkpoint),
+        self.encoder = to_device(registry.build(p.stores.encoder, config["encoders"], frames_store, encoder_checkpoint),
                                  self.device)
         self.reads_labels = getattr(self.encoder, "reads_labels", False)
         if self.reads_labels:
             check_state_tokens(checkpoint, self.meta, self.encoder)
-        self.task = p.task
-        self.camera_names = list(envs.CAMERA_SETS[p.cams])
+        self.task = p.stores.task
+        self.camera_names = list(envs.CAMERA_SETS[p.stores.cams])
         self.uids = [envs.SIM_CAMERA_UID[c] for c in self.camera_names]
         # an encoder that reads the simulator's state needs no image: render nothing
-        self.env = envs.make_env(self.task, config, None if self.reads_labels else p.cams, p.resolution,
+        self.env = envs.make_env(self.task, config, None if self.reads_labels else p.stores.cams, p.stores.resolution,
                                 obs_mode="rgb")
-        self.approx = envs.approx_camera_matrices(config, self.camera_names, p.resolution)
+        self.approx = envs.approx_camera_matrices(config, self.camera_names, p.stores.resolution)
         ev = config["evaluation"]
         self.cap = ev["episode_cap"][self.task]
-        self.execute = min(ev["execute_actions"], p.horizon)
+        self.execute = min(ev["execute_actions"], p.network.horizon)
         self.ensemble = ev.get("temporal_ensemble", 0.0)
         self.readout_filter = ev.get("readout_filter", "none")
         self.trivial_steps = ev["trivial_steps"]
@@ -112,10 +112,11 @@ class ClosedLoop:
     def _tokens(self, obs, labels: dict) -> torch.Tensor:
         """This step's visual tokens (C, K, D), exactly as the policy saw them in training."""
         if self.reads_labels:
-            return torch.from_numpy(self.encoder.tokens_from_labels(labels))[self.policy.cameras]
+            return torch.from_numpy(self.encoder.tokens_from_labels(labels))[self.policy.stores.cameras]
         rgb = torch.stack([obs["sensor_data"][u]["rgb"][0] for u in self.uids])[None].cpu()
         tokens, _ = self.encoder.encode(rgb.to(self.device))
-        return observation.as_stored(tokens.cpu(), self.meta.get("tokens_dtype", "float32"))[0][self.policy.cameras]
+        tokens = observation.as_stored(tokens.cpu(), self.meta.get("tokens_dtype", "float32"))
+        return tokens[0][self.policy.stores.cameras]
 
     @torch.inference_mode()
     def _observe(self, obs, first: bool) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:
@@ -148,11 +149,11 @@ class ClosedLoop:
     @torch.inference_mode()
     def episode(self, seed: int) -> tuple[dict, dict[str, list]]:
         obs, _ = self.env.reset(seed=seed)
-        T = self.policy.window
+        T = self.policy.network.window
         window: deque = deque(maxlen=T)
         steps: dict[str, list] = {k: [] for k in ("step", "action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos",
                                                    "obj_est", "obj_seen", "reward")}
-        chunks: deque = deque(maxlen=-(-self.policy.horizon // self.execute))  # (query step, (H, 8) actions)
+        chunks: deque = deque(maxlen=-(-self.policy.network.horizon // self.execute))  # (query step, (H, 8) actions)
         success, total = False, 0.0
         for t in range(self.cap):
             tokens, proprio, goal, labels = self._observe(obs, first=t == 0)

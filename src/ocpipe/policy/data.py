@@ -11,7 +11,7 @@ from ..features.encode import check_provenance, open_features
 from ..frames.store import open_store
 from . import observation
 from .settings import PolicySettings
-from .windows import Labels, action_frames
+from .windows import ChunkWindowLoader, Labels, action_frames
 
 
 @dataclass
@@ -22,11 +22,16 @@ class TrainingData:
     val_frames: np.ndarray  # frame ids of the held-out episodes
     meta: dict  # what the checkpoint records about its inputs
 
+    def windows(self, policy: PolicySettings, frames: np.ndarray, batch_size: int, seed: int) -> ChunkWindowLoader:
+        """Batches of the policy's T-step windows ending at ``frames``, one features chunk in RAM at a time."""
+        return ChunkWindowLoader(self.tokens, self.labels, policy.network.window, policy.network.horizon, batch_size,
+                                 policy.stores.cameras, seed, frames=frames)
+
     def normalizer_inputs(self, policy: PolicySettings) -> dict:
         """The training frames' raw inputs and targets that the policy's Normalizer is fitted on."""
         frames, lab = self.train_frames, self.labels
-        if policy.joint_targets == "residual":  # each target relative to its current frame's joints
-            action = lab.action[action_frames(frames, lab, policy.horizon)]
+        if policy.training.joint_targets == "residual":  # each target relative to its current frame's joints
+            action = lab.action[action_frames(frames, lab, policy.network.horizon)]
         else:
             action = lab.action[frames]
         return {"proprio": lab.proprio[frames], "goal": lab.goal[frames], "action": action,
@@ -57,10 +62,10 @@ def load(policy: PolicySettings | dict, features_path, frames_path, camera_appro
     if tokens.shape[0] != frames["qpos"].shape[0]:
         raise ValueError(
             f"{features_path} has {tokens.shape[0]} frames but {frames_path} has {frames['qpos'].shape[0]}")
-    if max(policy.cameras) >= tokens.shape[1]:
-        raise ValueError(f"policy.cameras {policy.cameras}: {features_path} has {tokens.shape[1]} cameras")
+    if max(policy.stores.cameras) >= tokens.shape[1]:
+        raise ValueError(f"policy.cameras {policy.stores.cameras}: {features_path} has {tokens.shape[1]} cameras")
     offsets = frames.attrs["episode_offsets"]
-    train_frames, val_frames = split_episodes(offsets, policy.val_episodes, str(frames_path))
+    train_frames, val_frames = split_episodes(offsets, policy.training.val_episodes, str(frames_path))
     arrays = {k: frames[k][:] for k in observation.labels_needed(policy)}
     labels = Labels.from_offsets(
         offsets,
@@ -68,8 +73,8 @@ def load(policy: PolicySettings | dict, features_path, frames_path, camera_appro
         observation.goal(policy, arrays, observation.store_cameras(policy, frames, camera_approx)),
         arrays["action"].astype(np.float32),
         qpos=arrays["qpos"].astype(np.float32),
-        aux=arrays["obj_pos"].astype(np.float32) if policy.aux_object_weight > 0 else None,
-        readout=observation.object_pose(arrays) if policy.object_readout else None,
+        aux=arrays["obj_pos"].astype(np.float32) if policy.training.aux_object_weight > 0 else None,
+        readout=observation.object_pose(arrays) if policy.readout.enabled else None,
     )
     meta = {
         "K": int(tokens.shape[2]),
@@ -78,7 +83,7 @@ def load(policy: PolicySettings | dict, features_path, frames_path, camera_appro
         "frames_store": str(frames_path),
         "encoder": feats.attrs.get("encoder"),
         "encoder_checkpoint_sha256": feats.attrs.get("checkpoint_sha256"),
-        "cameras": [frames.attrs["cameras"][c] for c in policy.cameras],
+        "cameras": [frames.attrs["cameras"][c] for c in policy.stores.cameras],
         "tokens_dtype": str(tokens.dtype),
     }
     return TrainingData(tokens, labels, train_frames, val_frames, meta)

@@ -48,7 +48,7 @@ class PolicyOutput(NamedTuple):
 
 def goal_dims(policy: PolicySettings) -> int:
     """Width of the goal input: the goal, and with `goal_relative: tcp` the goal minus the TCP beside it."""
-    return GOAL_DIMS[policy.goal] * (2 if policy.goal_relative == "tcp" else 1)
+    return GOAL_DIMS[policy.goal.kind] * (2 if policy.goal.relative == "tcp" else 1)
 
 
 class SequencePolicy(nn.Module):
@@ -58,34 +58,35 @@ class SequencePolicy(nn.Module):
     def __init__(self, policy: PolicySettings | dict, K: int, D: int):
         super().__init__()
         policy = PolicySettings.of(policy)
-        W, heads = policy.width, policy.heads
-        self.T, self.H = policy.window, policy.horizon
-        self.cams = len(policy.cameras)
-        self.tanh = policy.action_head == "tanh"
-        self.visual_dropout = policy.visual_dropout
-        self.bce = policy.gripper == "bce"
-        P, G = PROPRIO_DIMS[policy.proprio], goal_dims(policy)
+        W, heads = policy.network.width, policy.network.heads
+        self.T, self.H = policy.network.window, policy.network.horizon
+        self.cams = len(policy.stores.cameras)
+        self.tanh = policy.network.action_head == "tanh"
+        self.visual_dropout = policy.visual.dropout
+        self.bce = policy.network.gripper == "bce"
+        P, G = PROPRIO_DIMS[policy.network.proprio], goal_dims(policy)
         self.normalizer = Normalizer(policy, K, D, self.cams, P, G)
         # modules in this order: each draws its initial weights from the seeded generator in turn
-        self.visual = HEADS[policy.visual_head](K, D, W, heads)
-        self.fusion = CrossCameraFusion(W, heads) if policy.fusion == "cross_attention" else None
+        self.visual = HEADS[policy.visual.head](K, D, W, heads)
+        self.fusion = CrossCameraFusion(W, heads) if policy.visual.fusion == "cross_attention" else None
         self.proprio = mlp([P, W, W, W])
         # only the goal module in use is built: no init draws for the others
-        self.goal = mlp([G, W, W, W]) if policy.goal == "2d" else nn.Linear(G, W) if policy.goal == "3d" else None
+        kind = policy.goal.kind
+        self.goal = mlp([G, W, W, W]) if kind == "2d" else nn.Linear(G, W) if kind == "3d" else None
         self.action_token = nn.Parameter(torch.zeros(W))
-        readout = policy.object_readout
+        readout = policy.readout.enabled
         self.object_readout = mlp([self.cams * K * D, 4 * W, 4 * W, STATE_DIMS]) if readout else None
         self.object_token = nn.Linear(STATE_DIMS, W) if readout else None
         # per step: the visual tokens of every camera, proprio, goal, object read-out, action
         self.per_step = self.cams * self.visual.tokens_out + 1 + (self.goal is not None) + readout + 1
         self.pos = nn.Parameter(torch.zeros(self.T * self.per_step, W))
-        layer = nn.TransformerEncoderLayer(W, heads, 4 * W, dropout=policy.dropout, activation="gelu",
+        layer = nn.TransformerEncoderLayer(W, heads, 4 * W, dropout=policy.network.dropout, activation="gelu",
                                            batch_first=True, norm_first=True)
-        self.decoder = nn.TransformerEncoder(layer, policy.layers, enable_nested_tensor=False)
+        self.decoder = nn.TransformerEncoder(layer, policy.network.layers, enable_nested_tensor=False)
         self.norm = nn.LayerNorm(W)
         self.readout = mlp([W, W, W, self.H * (7 if self.bce else 8)])
         self.gripper_head = mlp([W, W, W, self.H]) if self.bce else None
-        self.aux_head = mlp([W, W, 3]) if policy.aux_object_weight > 0 else None
+        self.aux_head = mlp([W, W, 3]) if policy.training.aux_object_weight > 0 else None
         nn.init.normal_(self.pos, std=0.02)
         nn.init.normal_(self.action_token, std=0.02)
 

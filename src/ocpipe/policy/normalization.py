@@ -62,14 +62,14 @@ class Normalizer(nn.Module):
     def __init__(self, policy, K: int, D: int, C: int, P: int, G: int):
         super().__init__()
         self.tokens = Standardize((D,))
-        self.readout = Standardize((C * K * D,)) if policy.object_readout else None
-        self.readout_elementwise = policy.object_readout and policy.readout_standardize == "element"
+        self.readout = Standardize((C * K * D,)) if policy.readout.enabled else None
+        self.readout_elementwise = policy.readout.enabled and policy.readout.standardize == "element"
         self.proprio = Standardize((P,))
         self.goal = Standardize((G,))
-        self.residual = policy.joint_targets == "residual"
-        self.action = Standardize((policy.horizon, 8) if self.residual else (8,))
-        self.pose = Standardize((5,)) if policy.object_readout else None
-        self.aux = Standardize((3,)) if policy.aux_object_weight > 0 else None
+        self.residual = policy.training.joint_targets == "residual"
+        self.action = Standardize((policy.network.horizon, 8) if self.residual else (8,))
+        self.pose = Standardize((5,)) if policy.readout.enabled else None
+        self.aux = Standardize((3,)) if policy.training.aux_object_weight > 0 else None
 
     def readout_input(self, tokens: torch.Tensor) -> torch.Tensor:
         """Raw tokens (..., C, K, D) -> the object read-out's standardized input (..., C * K * D)."""
@@ -98,7 +98,7 @@ class Normalizer(nn.Module):
         """Fit on the training frames' raw inputs and targets: ``action`` (n, 8) absolute targets or (n, H, 8)
         targets of current frames whose joints are ``qpos_at`` (n, 9) for residual targets. The token and
         read-out input statistics come from fit_tokens and fit_readout."""
-        mode = policy.proprio
+        mode = policy.network.proprio
         x = proprio.astype(np.float64)
         if mode == "qpos9_global":
             self.proprio.set(*fit(x[:, :9], pooled=True))
@@ -107,7 +107,7 @@ class Normalizer(nn.Module):
             self.proprio.set(np.concatenate([jm, fm]), np.concatenate([js, fs]))
         else:
             self.proprio.set(*fit(x))
-        if policy.goal_norm == "zscore" and goal.shape[1]:
+        if policy.goal.norm == "zscore" and goal.shape[1]:
             self.goal.set(*fit(goal))
         if self.residual:
             action = action - np.pad(qpos_at[:, :7], ((0, 0), (0, 1)))[:, None]

@@ -25,42 +25,42 @@ PROPRIO_MODES = ("joints7", "qpos9_global", "qpos9_grouped", "joints7_tcp")
 def labels_needed(policy: PolicySettings) -> tuple[str, ...]:
     """The per-step labels a policy's inputs and training targets read."""
     need = ["qpos", "action"]
-    if policy.goal != "none":
+    if policy.goal.kind != "none":
         need += GOAL_LABELS
-    if policy.proprio == "joints7_tcp":
+    if policy.network.proprio == "joints7_tcp":
         need.append("tcp_pos")
-    if policy.aux_object_weight > 0 or policy.object_readout:
+    if policy.training.aux_object_weight > 0 or policy.readout.enabled:
         need.append("obj_pos")
-    if policy.object_readout:
+    if policy.readout.enabled:
         need.append("obj_quat")
     return tuple(dict.fromkeys(need))
 
 
 def proprio(policy: PolicySettings, labels: dict) -> np.ndarray:
-    """The proprioception vector (N, P) of ``policy.proprio``: the arm's 7 joints, all 9 qpos (with fingers),
+    """The proprioception vector (N, P) of the config key `proprio`: the arm's 7 joints, all 9 qpos (with fingers),
     or the 7 joints and the TCP's position."""
     qpos = np.asarray(labels["qpos"], dtype=np.float32)
-    if policy.proprio == "joints7_tcp":
+    if policy.network.proprio == "joints7_tcp":
         return np.concatenate([qpos[..., :7], np.asarray(labels["tcp_pos"], dtype=np.float32)], axis=-1)
-    return qpos[..., : (7 if policy.proprio == "joints7" else 9)]
+    return qpos[..., : (7 if policy.network.proprio == "joints7" else 9)]
 
 
 def goal(policy: PolicySettings, labels: dict, cameras: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
     """The goal input (N, G): nothing (G = 0), the goal's xyz (3d), or its projection into each camera (2d,
     image fractions); with `goal_relative: tcp` also the goal minus the TCP, the TCP projected the same way."""
-    if policy.goal == "none":
+    if policy.goal.kind == "none":
         return np.zeros((len(labels["qpos"]), 0), dtype=np.float32)
     goal = np.asarray(labels["goal_pos"], dtype=np.float32)
-    hand = np.asarray(labels["tcp_pos"], dtype=np.float32) if policy.goal_relative == "tcp" else None
-    if policy.goal == "2d":
+    hand = np.asarray(labels["tcp_pos"], dtype=np.float32) if policy.goal.relative == "tcp" else None
+    if policy.goal.kind == "2d":
         if cameras is None:
             raise ValueError(f"policy {policy.name!r}: a 2d goal needs the cameras it is projected with")
-        goal = projection.goal2d(goal, *cameras, policy.resolution).astype(np.float32)
+        goal = projection.goal2d(goal, *cameras, policy.stores.resolution).astype(np.float32)
         if not np.isfinite(goal).all():
-            raise ValueError(f"policy {policy.name!r}: the camera set {policy.cams!r} has no "
-                             f"{policy.goal_calibration} 2d goal (policy.goal_calibration)")
+            raise ValueError(f"policy {policy.name!r}: the camera set {policy.stores.cams!r} has no "
+                             f"{policy.goal.calibration} 2d goal (policy.goal_calibration)")
         if hand is not None:  # kept in float64 until the difference, as every trained 2d policy saw it
-            hand = projection.goal2d(hand, *cameras, policy.resolution)
+            hand = projection.goal2d(hand, *cameras, policy.stores.resolution)
     if hand is None:
         return goal
     return np.concatenate([goal, goal - hand], axis=-1).astype(np.float32)
@@ -69,9 +69,9 @@ def goal(policy: PolicySettings, labels: dict, cameras: tuple[np.ndarray, np.nda
 def store_cameras(policy: PolicySettings, frames, camera_approx: dict | None) -> tuple | None:
     """The cameras a frames store's 2d goal is projected with: the hand-entered model (approx, config
     `camera_approx`) or the store's own camera matrices (exact; per frame for a moving camera)."""
-    if policy.goal != "2d":
+    if policy.goal.kind != "2d":
         return None
-    if policy.goal_calibration == "approx":
+    if policy.goal.calibration == "approx":
         return approx_cameras(policy, camera_approx, list(frames.attrs["cameras"]))
     suffix = "_per_frame" if "cam_intrinsic_per_frame" in frames else ""
     names = ("cam_intrinsic" + suffix, "cam_extrinsic" + suffix)
@@ -85,14 +85,14 @@ def store_cameras(policy: PolicySettings, frames, camera_approx: dict | None) ->
 def approx_cameras(policy: PolicySettings, camera_approx: dict | None, names: list[str]) -> tuple:
     if camera_approx is None:
         raise ValueError(f"policy {policy.name!r}: the approx 2d goal needs config camera_approx")
-    return envs.approx_camera_matrices({"camera_approx": camera_approx}, names, policy.resolution)
+    return envs.approx_camera_matrices({"camera_approx": camera_approx}, names, policy.stores.resolution)
 
 
 def step_cameras(policy: PolicySettings, obs, uids: list[str], approx: tuple | None) -> tuple | None:
     """The cameras one simulator step's 2d goal is projected with (approx: the model given)."""
-    if policy.goal != "2d":
+    if policy.goal.kind != "2d":
         return None
-    if policy.goal_calibration == "approx":
+    if policy.goal.calibration == "approx":
         return approx
     params = obs["sensor_param"]
     K = np.stack([params[u]["intrinsic_cv"][0].cpu().numpy() for u in uids])

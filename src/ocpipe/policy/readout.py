@@ -34,11 +34,11 @@ def element_stats(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def fit_tokens(norm: normalization.Normalizer, policy, tokens, train_frames: np.ndarray) -> None:
     """The visual tokens' statistics (token_norm: per dimension, pooled over cameras and slots) and, for a read-out
     standardized per element without the scenes store, its input's, on evenly spaced training frames."""
-    if policy.token_norm == "zscore":
+    if policy.visual.token_norm == "zscore":
         x = gather_tokens(tokens, spread(train_frames))
         norm.tokens.set(*element_stats(x.reshape(-1, x.shape[-1])))
-    if norm.readout_elementwise and not policy.readout_scenes:  # else fit_readout sets them
-        norm.readout.set(*element_stats(gather_tokens(tokens, spread(train_frames))[:, list(policy.cameras)]))
+    if norm.readout_elementwise and not policy.readout.scenes:  # else fit_readout sets them
+        norm.readout.set(*element_stats(gather_tokens(tokens, spread(train_frames))[:, list(policy.stores.cameras)]))
 
 
 def readout_weights(yaw_weight: float, device=None) -> torch.Tensor:
@@ -51,7 +51,7 @@ def fit_readout(model, policy, tokens, pose: np.ndarray, train_frames: np.ndarra
     """Fit the policy's object read-out on the training demos' frames (their raw poses ``pose``, (N, 5)) plus the
     scenes store's scenes, then freeze it: the policy trains around a fixed estimate of where the object is,
     fitted on far more placements than the demos show. -> the last batch's loss."""
-    cams, norm = list(policy.cameras), model.normalizer
+    cams, norm = list(policy.stores.cameras), model.normalizer
     demo = gather_tokens(tokens, train_frames)[:, cams].astype(np.float32)
     scene_pose = observation.object_pose({"obj_pos": scenes["obj_pos"][...], "obj_quat": scenes["obj_quat"][...]})
     y = np.concatenate([pose[train_frames], scene_pose])
@@ -64,7 +64,7 @@ def fit_readout(model, policy, tokens, pose: np.ndarray, train_frames: np.ndarra
         yt = norm.pose(torch.from_numpy(y.astype(np.float32)).to(device))
     readout = model.object_readout
     loss = fit_mse(readout, xz, yt, torch.Generator().manual_seed(seed), epochs, batch,
-                   weights=readout_weights(policy.readout_yaw_weight, device))
+                   weights=readout_weights(policy.readout.yaw_weight, device))
     readout.requires_grad_(False)
     log.info("object read-out fitted on %d demo frames and %d scenes, then frozen (loss %.4f)", len(demo),
              len(x) - len(demo), loss)

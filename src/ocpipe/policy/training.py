@@ -32,7 +32,7 @@ from . import checkpoint, data, readout
 from .model import loss_terms
 from .settings import PolicySettings
 from .weighting import loss_weights
-from .windows import ChunkWindowLoader, action_frames
+from .windows import action_frames
 
 log = logging.getLogger(__name__)
 LOSSES = ("loss", "loss_joints", "loss_gripper", "loss_aux", "loss_readout")
@@ -64,7 +64,7 @@ def train(policy: PolicySettings | dict, seed: int, features_path, frames_path, 
     torch.set_num_threads(threads)
     run = set_up(policy, seed, features_path, frames_path, Path(out_dir), scenes_path, camera_approx)
     keep = set(saved_epochs(policy.as_dict()))
-    for epoch in range(run.start, policy.epochs):
+    for epoch in range(run.start, policy.training.epochs):
         run.history.append(train_epoch(run, epoch, progress))
         log.info("epoch %d: %s", epoch + 1, run.history[-1])
         state = {"model": run.model.state_dict(), "optimizer": run.opt.state_dict(), "policy": policy.as_dict(),
@@ -82,10 +82,10 @@ def set_up(policy: PolicySettings, seed: int, features_path, frames_path, out_di
            camera_approx) -> Run:
     """Data, the seeded model with its fitted Normalizer (and frozen read-out), the optimizer, and the resume
     state of an interrupted run of the same settings."""
-    device = pick_device(policy.device)
+    device = pick_device(policy.training.device)
     d = data.load(policy, features_path, frames_path, camera_approx)
     scenes = None
-    if policy.readout_scenes:
+    if policy.readout.scenes:
         if scenes_path is None:
             raise ValueError(f"policy {policy.name!r} has readout_scenes: true but no scenes store was given")
         scenes = open_scenes(scenes_path, d.meta["encoder_checkpoint_sha256"])
@@ -109,8 +109,8 @@ def set_up(policy: PolicySettings, seed: int, features_path, frames_path, out_di
             readout.fit_readout(model, policy, d.tokens, d.labels.readout, d.train_frames, scenes, seed)
     elif scenes is not None:  # the fitted read-out comes back with the resume state: freeze it, do not refit
         model.object_readout.requires_grad_(False)
-    opt = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=policy.lr,
-                            weight_decay=policy.weight_decay)
+    opt = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=policy.training.lr,
+                            weight_decay=policy.training.weight_decay)
     history, start = [], 0
     if state is not None:
         model.load_state_dict(state["model"])
@@ -130,26 +130,25 @@ def train_epoch(run: Run, epoch: int, progress: bool) -> dict:
     policy, model, d = run.policy, run.model, run.data
     torch.manual_seed(_epoch_seed(run.seed, epoch))
     model.train()
-    loader = ChunkWindowLoader(d.tokens, d.labels, policy.window, policy.horizon, policy.batch_size,
-                               policy.cameras, run.seed, frames=d.train_frames)
-    readout_w = readout.readout_weights(policy.readout_yaw_weight, run.device)
+    loader = d.windows(policy, d.train_frames, policy.training.batch_size, run.seed)
+    readout_w = readout.readout_weights(policy.readout.yaw_weight, run.device)
     t0 = time.perf_counter()
     sums, n = dict.fromkeys(LOSSES, 0.0), 0
     bar = tqdm(loader.epoch(epoch), total=len(loader), disable=not progress, unit="batch",
-               desc=f"{policy.name or 'policy'} epoch {epoch + 1}/{policy.epochs}")
+               desc=f"{policy.name or 'policy'} epoch {epoch + 1}/{policy.training.epochs}")
     for batch in bar:
         batch = {k: v.to(run.device) for k, v in batch.items()}
         terms = batch_loss(model, policy, batch, epoch, readout_w)
         run.opt.zero_grad(set_to_none=True)
         terms["loss"].backward()
-        torch.nn.utils.clip_grad_norm_(model.parameters(), policy.grad_clip)
+        torch.nn.utils.clip_grad_norm_(model.parameters(), policy.training.grad_clip)
         run.opt.step()
         b = len(batch["action"])
         for k in sums:
             sums[k] += float(terms[k].detach()) * b
         n += b
         bar.set_postfix(loss=f"{sums['loss'] / n:.4f}")
-    row = {"epoch": epoch + 1, **{k: v / n for k, v in sums.items()}, "lr": policy.lr,
+    row = {"epoch": epoch + 1, **{k: v / n for k, v in sums.items()}, "lr": policy.training.lr,
            "seconds": time.perf_counter() - t0}
     if len(d.val_frames):
         row |= openloop_error(model, d, policy, run.device, run.seed)
@@ -161,13 +160,14 @@ def batch_loss(model, policy: PolicySettings, batch: dict, epoch: int, readout_w
     0 without that head)."""
     out = model(batch["tokens"], batch["proprio"], batch["goal"])
     norm = model.normalizer
-    w = loss_weights(policy.loss_weighting, batch["progress"], epoch, policy.time_weight_warmup_epochs)
+    tr = policy.training
+    w = loss_weights(tr.loss_weighting, batch["progress"], epoch, tr.time_weight_warmup_epochs)
     terms = loss_terms(out.actions, norm.actions_to_model(batch["action"], batch.get("qpos")), w,
-                       policy.gripper == "bce")
+                       policy.network.gripper == "bce")
     terms["loss_aux"] = torch.zeros(())
     if out.object_pos is not None:
         terms["loss_aux"] = ((out.object_pos - norm.aux(batch["aux"])) ** 2).mean()
-        terms["loss"] = terms["loss"] + policy.aux_object_weight * terms["loss_aux"]
+        terms["loss"] = terms["loss"] + policy.training.aux_object_weight * terms["loss_aux"]
     terms["loss_readout"] = torch.zeros(())
     if out.readout is not None:  # its own loss: the policy's tokens see the read-out without gradient
         terms["loss_readout"] = (readout_w * (out.readout - norm.pose(batch["readout"])) ** 2).mean()
@@ -193,15 +193,14 @@ def openloop_error(model, d: data.TrainingData, policy: PolicySettings, device, 
     """Action error on held-out demo frames, without a simulator: the predicted H-step chunk against the expert's
     (joint error in radians, mean over joints and steps, and for the first step alone; share of gripper commands
     that agree). Cheap, and it separates 'did not learn the demos' from 'fails in closed loop'."""
-    loader = ChunkWindowLoader(d.tokens, d.labels, policy.window, policy.horizon, 256, policy.cameras,
-                               seed, frames=d.val_frames)
+    loader = d.windows(policy, d.val_frames, 256, seed)
     model.eval()
     joint_err, first_err, grip_ok, n = 0.0, 0.0, 0.0, 0
     for batch in loader.epoch(0):
         frames = batch["frame"].numpy()
         out = model(batch["tokens"].to(device), batch["proprio"].to(device), batch["goal"].to(device))
         got = model.normalizer.actions_from_model(out.actions, batch["qpos"].to(device)).cpu().numpy()
-        want = d.labels.action[action_frames(frames, d.labels, policy.horizon)]
+        want = d.labels.action[action_frames(frames, d.labels, policy.network.horizon)]
         err = np.abs(got[..., :7] - want[..., :7])
         joint_err += float(err.mean(axis=(1, 2)).sum())
         first_err += float(err[:, 0].mean(axis=1).sum())
