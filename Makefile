@@ -4,7 +4,7 @@ SNAKEMAKE := .venv/bin/snakemake
 MAIN_TARGET ?= spatial_grounding
 CORES ?= 2
 
-.PHONY: setup main test lint dry-run clean
+.PHONY: setup main test test-fast lint dry-run clean
 
 setup:
 	bash bin/setup.sh
@@ -15,6 +15,10 @@ main: setup
 
 test: setup lint
 	.venv/bin/python -m pytest
+
+# everyday work: everything but the end-to-end Snakemake runs (tests marked slow)
+test-fast: setup
+	.venv/bin/python -m pytest -m "not slow"
 
 lint:
 	.venv/bin/ruff check .

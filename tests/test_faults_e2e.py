@@ -18,18 +18,22 @@ from pathlib import Path
 import h5py
 import numpy as np
 import polars as pl
+import pytest
 import yaml
 import zarr
 from conftest import REPO
 from polars.testing import assert_frame_equal
 
+from ocpipe.config.validate import deep_merge
+
+pytestmark = pytest.mark.slow  # Snakemake end to end: minutes (make test-fast leaves them out)
+
 SNAKEMAKE = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile")]
 TARGET = "results/tables/table5_1.csv"
 EPOCHS, SAVE_EVERY = 16, 8
-TINY = {
+# the committed tiny study (.test/config.yaml), with what the kill tests need on top
+TINY = deep_merge(yaml.safe_load((REPO / ".test" / "config.yaml").read_text()), {
     "tasks": ["PickCube-v1"],
-    "demos": {"num_demos": 2, "shards": 1},
-    "frames": {"resolutions": [64], "shards": 2, "chunk_frames": 50, "camera_sets": {"PickCube-v1": ["dual"]}},
     # grid 48 (the default) rather than 16: encoding then takes seconds, not 0.2 s, so the kill can land while the
     # features job writes its store
     "encoders": {"slots_ssl": {"train_stores": ["PickCube-v1_dual_64"], "holdout_episodes": 1, "steps": 10,
@@ -50,7 +54,7 @@ TINY = {
     # config are bit-identical
     "compute": {stage: {"threads": 1} for stage in ("demos", "frames", "train_slots_ssl", "features", "train",
                                                     "evaluate", "light")},
-}
+})
 LOCKED = "Error: Directory cannot be locked. Please make sure that no other Snakemake process is trying to create"
 UNLOCKED = "Unlocked working directory."
 INCOMPLETE = "seem to be incomplete"

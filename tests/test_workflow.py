@@ -15,23 +15,10 @@ from conftest import REPO
 from ocpipe.frames import render
 from ocpipe.frames import store as frames_store
 
+pytestmark = pytest.mark.slow  # Snakemake end to end: minutes (make test-fast leaves them out)
+
 SNAKEMAKE = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile")]
-TINY = {
-    "tasks": ["PickCube-v1", "StackCube-v1"],
-    "demos": {"num_demos": 2, "shards": 1},
-    "frames": {"resolutions": [64], "shards": 2, "chunk_frames": 50,
-               "camera_sets": {"PickCube-v1": ["dual"], "StackCube-v1": ["native"]}},
-    "report": {"contact_sheet_episodes": 2, "contact_sheet_steps": 3},
-    "encoders": {"slots_ssl": {"train_stores": ["PickCube-v1_dual_64"], "holdout_episodes": 1, "steps": 30,
-                               "grid": 16, "batch_size": 8, "warmup_steps": 5, "slot_dim": 32, "feature_dim": 32}},
-    "features": {"batch_size": 32, "chunk_frames": 64, "attention_pairs": [[0, 0], [1, 60]],
-                 "probe_mlp_epochs": 5},
-    "scenes": {"count": 6},
-    "policy": {"resolution": 64, "window": 3, "horizon": 4, "width": 32, "layers": 2, "heads": 4, "epochs": 2,
-               "save_every": 2, "batch_size": 16, "lr": 0.001, "val_episodes": 1},
-    "evaluation": {"episode_cap": {"PickCube-v1": 12, "StackCube-v1": 12}, "execute_actions": 2, "sweep_episodes": 2,
-                   "stability_runs": 2, "stability_episodes": 2},
-}
+TINY = yaml.safe_load((REPO / ".test" / "config.yaml").read_text())  # the committed tiny study
 
 TABLES = ["results/tables/table5_1.csv", "results/tables/table5_2.csv", "results/figures/fig5_1.png",
           "results/figures/fig5_2.png", "results/figures/fig5_3.png",
@@ -368,6 +355,53 @@ def test_an_episode_is_the_same_in_a_fresh_env_and_after_other_episodes(tiny_run
     assert both_steps.filter(pl.col("seed") == seeds[1]).equals(alone_steps)
 
 
+def test_training_and_the_closed_loop_build_the_same_inputs_from_one_replayed_episode(tiny_run):
+    """policy.observation from the frames store (training) and from each simulator step (the closed loop) agree
+    exactly on a replayed demo: proprioception, the goal in every form and calibration, the object's pose."""
+    import h5py
+
+    from ocpipe.config import experiments
+    from ocpipe.config import validate as cfgmod
+    from ocpipe.frames import replay
+    from ocpipe.policy import observation
+    from ocpipe.policy.settings import PolicySettings
+    from ocpipe.sim import envs
+
+    res = tiny_run / "results"
+    config = cfgmod.load(REPO / "config" / "config.yaml", tiny_run / "tiny.yaml")
+    frames = frames_store.open_store(res / "frames" / "PickCube-v1_dual_64.zarr")
+    store = {k: frames[k][:] for k in ("qpos", "tcp_pos", "goal_pos", "obj_pos", "obj_quat")}
+    base = experiments.resolve(config, "goal2d")
+    policies = [PolicySettings.of({**base, "goal": goal, "goal_calibration": cal, "goal_relative": "tcp",
+                                   "proprio": "joints7_tcp"})
+                for goal, cal in (("2d", "exact"), ("2d", "approx"), ("3d", "exact"))]
+    from_store = [(observation.proprio(p, store),
+                   observation.goal(p, store, observation.store_cameras(p, frames, config["camera_approx"])))
+                  for p in policies]
+    pose = observation.object_pose(store)
+    names = list(frames.attrs["cameras"])
+    approx = envs.approx_camera_matrices(config, names, 64)
+    uids = [envs.SIM_CAMERA_UID[c] for c in names]
+    episode = json.loads((res / "demos" / "PickCube-v1.json").read_text())["episodes"][0]
+    lo, hi = frames.attrs["episode_offsets"][:2]
+    env = envs.make_env("PickCube-v1", config, "dual", 64)
+    try:
+        with h5py.File(res / "demos" / "PickCube-v1.h5", "r") as h5:
+            _, states = replay.read_episode(h5, episode)
+        env.reset(seed=episode["episode_seed"])
+        for t in range(hi - lo):
+            env.unwrapped.set_state_dict(replay.index_state(states, t))
+            step = observation.step_labels(env, first=t == 0)
+            obs = {"sensor_param": env.unwrapped.get_sensor_params()}
+            for p, (proprio, goal) in zip(policies, from_store):
+                np.testing.assert_array_equal(observation.proprio(p, step)[0], proprio[lo + t])
+                np.testing.assert_array_equal(
+                    observation.goal(p, step, observation.step_cameras(p, obs, uids, approx))[0], goal[lo + t])
+            np.testing.assert_array_equal(observation.object_pose(step)[0], pose[lo + t])
+    finally:
+        env.close()
+
+
 def test_no_first_frame_reads_a_grasp_left_over_from_the_previous_episode(tiny_run):
     """Contacts are computed by physics steps: right after a reset they are the previous episode's."""
     import h5py
@@ -393,7 +427,7 @@ def test_no_first_frame_reads_a_grasp_left_over_from_the_previous_episode(tiny_r
         with h5py.File(res / "demos" / "PickCube-v1.h5", "r") as h5:
             actions, states = replay.read_episode(h5, episode)
         u = loop.env.unwrapped
-        u.set_state_dict(replay._index_state(states, len(actions) - 1))  # the demo's last state: the cube in hand
+        u.set_state_dict(replay.index_state(states, len(actions) - 1))  # the demo's last state: the cube in hand
         u._step_action(torch.as_tensor(actions[-1][None], dtype=torch.float32))
         assert envs.task_readouts(loop.env)["is_grasped"]
         _, steps = closed_loop.run(loop, [10_003], {"exp": "goal2d", "checkpoint": 2, "run": 0}, progress=False)

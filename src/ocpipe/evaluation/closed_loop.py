@@ -48,8 +48,8 @@ def check_checkpoint(checkpoint, policy: PolicySettings | dict, meta: dict, fram
     if meta.get("encoder") not in (None, policy.stores.encoder):
         raise ValueError(
             f"{checkpoint}: its policy names encoder {policy.stores.encoder!r} but it was trained on "
-            f"{meta['encoder']!r} features ({meta.get('features_store')}): delete that features store and the run's checkpoints and "
-            "rerun the workflow to rebuild and retrain")
+            f"{meta['encoder']!r} features ({meta.get('features_store')}): delete that features store and the run's "
+            "checkpoints and rerun the workflow to rebuild and retrain")
     attrs = open_store(frames_store).attrs.asdict()
     for key, attr in (("task", "task"), ("cams", "camera_set"), ("resolution", "resolution")):
         got = getattr(policy.stores, key)
@@ -121,8 +121,8 @@ class ClosedLoop:
     @torch.inference_mode()
     def _observe(self, obs, first: bool) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:
         """-> this step's raw inputs (tokens (C, K, D), proprio (P,), goal (G,)) and its labels."""
-        labels = envs.task_readouts(self.env, after_reset=first)
-        rows = {k: np.asarray(v)[None] for k, v in labels.items()}
+        rows = observation.step_labels(self.env, first)
+        labels = {k: v[0] for k, v in rows.items()}
         cameras = observation.step_cameras(self.policy, obs, self.uids, self.approx)
         return (self._tokens(obs, labels), observation.proprio(self.policy, rows)[0],
                 observation.goal(self.policy, rows, cameras)[0], labels)

@@ -31,8 +31,9 @@ def _read_group(group: h5py.Group) -> dict:
     return {k: _read_group(v) if isinstance(v, h5py.Group) else v[()] for k, v in group.items()}
 
 
-def _index_state(states: dict, t: int) -> dict:
-    return {k: _index_state(v, t) if isinstance(v, dict) else torch.from_numpy(v[t : t + 1]) for k, v in states.items()}
+def index_state(states: dict, t: int) -> dict:
+    """The recorded env state of step ``t`` (a batch of one), as set_state_dict takes it."""
+    return {k: index_state(v, t) if isinstance(v, dict) else torch.from_numpy(v[t : t + 1]) for k, v in states.items()}
 
 
 def _flat_state(states: dict, t: int) -> np.ndarray:
@@ -101,7 +102,7 @@ class Replayer:
         }
         max_err, info = 0.0, {}
         for t, action in enumerate(actions):
-            u.set_state_dict(_index_state(states, t))
+            u.set_state_dict(index_state(states, t))
             sensors = u._get_obs_sensor_data()
             params = u.get_sensor_params()
             rows["rgb"].append(np.stack([sensors[uid]["rgb"][0].cpu().numpy() for uid in self.uids]))
