@@ -25,6 +25,31 @@ def shard_seed_range(config: dict, shard: int) -> tuple[range, int]:
     return range(start, start + d["attempts_per_demo"] * wanted[shard]), wanted[shard]
 
 
+def _plan(env, solve, seeds, wanted: int, bar) -> tuple[list[int], list[dict]]:
+    """Plan seed after seed until ``wanted`` demos succeeded -> (their lengths, the failed seeds and why)."""
+    failures: list[dict] = []
+    lengths: list[int] = []
+    for seed in seeds:
+        if len(lengths) == wanted:
+            break
+        try:
+            res = solve(env, seed=seed, debug=False, vis=False)
+            reason = "no motion plan" if res == -1 else None
+        except Exception as exc:  # the planner raises on unreachable grasps; that is a failed plan, not a crash
+            res, reason = -1, f"planner error: {exc}"
+        if reason is None and not bool(res[-1]["success"].item()):
+            reason = "plan executed but task not solved"
+        if reason is not None:
+            failures.append({"seed": seed, "reason": reason})
+            env.flush_trajectory(save=False)
+            continue
+        env.flush_trajectory(save=True)
+        lengths.append(int(res[-1]["elapsed_steps"].item()))
+        bar.update(1)
+        bar.set_postfix(failed=len(failures))
+    return lengths, failures
+
+
 def generate_shard(task: str, config: dict, shard: int, out_h5: str | Path, progress: bool = True) -> dict:
     """Run ManiSkill's motion-planning expert over this shard's seeds until it has its demos; failed plans are
     skipped to the next seed and counted. Writes out_h5 + .json atomically and returns a report."""
@@ -45,30 +70,12 @@ def generate_shard(task: str, config: dict, shard: int, out_h5: str | Path, prog
     env = RecordEpisode(env, output_dir=str(work), trajectory_name="shard", save_video=False,
                         source_type="motionplanning", source_desc="ManiSkill motion-planning expert (ocpipe shard)",
                         record_reward=False, save_on_reset=False)
-    solve = MP_SOLUTIONS[task]
-    failures: list[dict] = []
-    lengths: list[int] = []
     bar = tqdm(total=wanted, desc=f"{task} demos shard {shard}", disable=not progress)
-    for seed in seeds:
-        if len(lengths) == wanted:
-            break
-        try:
-            res = solve(env, seed=seed, debug=False, vis=False)
-            reason = "no motion plan" if res == -1 else None
-        except Exception as exc:  # the planner raises on unreachable grasps; that is a failed plan, not a crash
-            res, reason = -1, f"planner error: {exc}"
-        if reason is None and not bool(res[-1]["success"].item()):
-            reason = "plan executed but task not solved"
-        if reason is not None:
-            failures.append({"seed": seed, "reason": reason})
-            env.flush_trajectory(save=False)
-            continue
-        env.flush_trajectory(save=True)
-        lengths.append(int(res[-1]["elapsed_steps"].item()))
-        bar.update(1)
-        bar.set_postfix(failed=len(failures))
-    bar.close()
-    env.close()
+    try:
+        lengths, failures = _plan(env, MP_SOLUTIONS[task], seeds, wanted, bar)
+    finally:
+        bar.close()
+        env.close()
     if len(lengths) < wanted:
         raise DemoError(
             f"{task} shard {shard}: only {len(lengths)}/{wanted} successful demos in seeds "
