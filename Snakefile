@@ -23,6 +23,7 @@ include: "workflow/rules/encoders.smk"
 include: "workflow/rules/features.smk"
 include: "workflow/rules/policy.smk"
 include: "workflow/rules/evaluation.smk"
+include: "workflow/rules/levers.smk"
 
 
 rule spatial_grounding:

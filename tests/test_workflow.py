@@ -23,7 +23,8 @@ TINY = yaml.safe_load((REPO / ".test" / "config.yaml").read_text())  # the commi
 TABLES = ["results/tables/table5_1.csv", "results/tables/table5_2.csv", "results/figures/fig5_1.png",
           "results/figures/fig5_2.png", "results/figures/fig5_3.png",
           "results/tables/table5_6.csv",  # an ablation table end to end: fusion, with training-seed runs
-          "results/tables/findings_main.csv"]
+          "results/tables/findings_main.csv",
+          "results/tables/levers.csv"]  # the levers target: two levers on the validation pool
 TRAINED = ["results/runs/goal2d/train_log.parquet"]
 
 

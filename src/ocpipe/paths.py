@@ -41,6 +41,8 @@ FAILURE_RUN = RUN + "/failure_run"
 TRAIN_SEEDS = RUN + "/train_seeds"
 FAILURES = RUN + "/failures.parquet"
 
+LEVER = RESULTS + "/levers/{lever}"  # one lever: checkpoints/, train_log.parquet, validation.*.parquet
+LEVER_EVAL = LEVER + "/validation"  # .episodes.parquet and .steps.parquet
 TABLE = RESULTS + "/tables/{table}"  # .csv and .md (findings: TABLE_DIR/{scope})
 TABLE_DIR = RESULTS + "/tables"
 FIGURE = RESULTS + "/figures/{figure}.png"

@@ -12,6 +12,7 @@ wildcard_constraints:
     res=r"\d+",
     shard=r"\d+",
     exp=r"[A-Za-z0-9][A-Za-z0-9_-]*",
+    lever=r"[A-Za-z0-9][A-Za-z0-9_-]*",
 
 
 def cfg(*sections):
@@ -111,8 +112,11 @@ def policy_of(w):
 
 
 def train_inputs(w):
+    return train_inputs_of(policy_of(w))
+
+
+def train_inputs_of(p):
     """A policy's features and frames stores, and the scenes store when its object read-out is fitted on scenes."""
-    p = policy_of(w)
     store = _exp.features_store(p)
     out = {"features": paths.features_store(store), "frames": paths.frames_store(_exp.frames_store(p))}
     if p.get("readout_scenes"):
@@ -142,3 +146,32 @@ def failure_inputs(exp):
     if config["evaluation"]["failure_episodes"]:
         return [paths.FAILURE_RUN.format(exp=exp) + ".episodes.parquet"]
     return stability_outputs(exp)
+
+
+# levers (workflow/rules/levers.smk)
+def lever_of(w):
+    """The resolved policy settings of the job's lever."""
+    return _exp.resolve_lever(config, w.lever)
+
+
+def lever_train_inputs(w):
+    return train_inputs_of(lever_of(w))
+
+
+def lever_eval_inputs(w):
+    p = lever_of(w)
+    return {
+        "checkpoints": f"{paths.LEVER}/checkpoints".format(lever=w.lever),
+        "frames": paths.frames_store(_exp.frames_store(p)),
+        "encoder": encoder_checkpoint(p["encoder"]),
+    }
+
+
+LEVER_FILES = {
+    name: (
+        f"{paths.LEVER}/train_log.parquet".format(lever=name),
+        f"{paths.LEVER_EVAL}.episodes.parquet".format(lever=name),
+        f"{paths.LEVER_EVAL}.steps.parquet".format(lever=name),
+    )
+    for name in config["levers"]["sets"]
+}

@@ -17,6 +17,17 @@ def resolve(config: dict, name: str) -> dict:
     return policy
 
 
+def resolve_lever(config: dict, name: str) -> dict:
+    """The full policy settings of lever ``name`` (config `levers.sets`): its experiment's, then its overrides."""
+    sets = config["levers"]["sets"]
+    if name not in sets:
+        raise ConfigError(f"levers.sets.{name}: no such lever (defined: {', '.join(sorted(sets))})")
+    lever = sets[name]
+    policy = {**resolve(config, lever["experiment"]), **lever.get("policy", {}), "name": name}
+    policy["epochs"] = max(1, round(policy["epochs"] * policy.pop("epoch_share", 1.0)))
+    return policy
+
+
 def saved_epochs(policy: dict) -> list[int]:
     """Epochs (1-based) whose checkpoint is kept: every save_every-th and the last."""
     epochs = list(range(policy["save_every"], policy["epochs"] + 1, policy["save_every"]))

@@ -12,7 +12,7 @@ import yaml
 from ..policy.settings import schema_properties
 from .errors import ConfigError
 from .experiments import problems as policy_problems
-from .experiments import resolve
+from .experiments import resolve, resolve_lever
 from .seed_pools import pool_problems
 
 # evaluation settings that measure something other than the policy: never behind a table
@@ -86,6 +86,7 @@ def load_schema(schema_path: str | Path = SCHEMA_PATH) -> dict:
     top = schema["properties"]
     top["policy"] |= {"properties": props, "required": required}
     top["experiments"]["additionalProperties"]["properties"] = props
+    top["levers"]["properties"]["sets"]["additionalProperties"]["properties"]["policy"]["properties"] = props
     return schema
 
 
@@ -158,10 +159,28 @@ def _cross_field_problems(config: dict) -> list[str]:
     problems += pool_problems(config["evaluation"])
     if config["evaluation"]["readout_filter"] in DIAGNOSTIC_FILTERS:
         problems.append(f"  evaluation.readout_filter: {config['evaluation']['readout_filter']!r} is a diagnostic "
-                        "(perfect perception), not a method: the tables refuse it; bench/levers.py takes it as a "
-                        "lever override")
+                        "(perfect perception), not a method: the tables and levers refuse it")
     problems += scene_seed_problems(config)
     problems += policy_problems(config["policy"])
     for name in config["experiments"]:
         problems += [p for p in policy_problems(resolve(config, name)) if p not in problems]
+    return problems + lever_problems(config)
+
+
+def lever_problems(config: dict) -> list[str]:
+    """A lever names a defined experiment, resolves to valid settings and asks for no more validation episodes than
+    the validation pool holds."""
+    levers = config["levers"]
+    problems = []
+    pool = config["evaluation"]["validation_pool_size"]
+    if levers["sets"] and levers["episodes"] > pool:
+        problems.append(f"  levers.episodes: {levers['episodes']} episodes per lever, but the validation pool holds "
+                        f"{pool} seeds (evaluation.validation_pool_size)")
+    for name, lever in levers["sets"].items():
+        if lever["experiment"] not in config["experiments"]:
+            problems.append(f"  levers.sets.{name}.experiment: {lever['experiment']!r} is not defined under "
+                            "experiments")
+            continue
+        problems += [p.replace(f"experiments.{name}", f"levers.sets.{name}.policy")
+                     for p in policy_problems(resolve_lever(config, name))]
     return problems

@@ -87,9 +87,10 @@ def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None 
 
 def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_ckpt, out_episodes, out_steps,
             seed: int, run: int = 0, best_json=None, epoch: int | None = None, threads: int = 1,
-            progress: bool = True, policy: dict | None = None) -> pl.DataFrame:
+            progress: bool = True, policy: dict | None = None, validation_episodes: int = 0) -> pl.DataFrame:
     """``policy``: the experiment's resolved settings; a checkpoint trained with another task, camera set,
-    resolution or encoder is refused before the simulator starts."""
+    resolution or encoder is refused before the simulator starts. ``kind`` 'validation' (a lever) runs
+    ``validation_episodes`` episodes of the validation pool."""
     if epoch is None:
         epoch = json.loads(Path(best_json).read_text())["epoch"]
     ckpt = Path(checkpoints_dir) / f"epoch_{epoch:04d}.pt"
@@ -103,10 +104,13 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
     loop = closed_loop.ClosedLoop(ckpt, config, frames, encoder_ckpt or None,
                                  device=pick_device(config["evaluation"]["device"]), expected=policy)
     try:
-        episode_seeds = list(open_store(frames).attrs["episode_seeds"]) if kind == "train_seeds" else None
-        seeds = seeds_for(kind, config["evaluation"], seed, run, episode_seeds)
-        ids = {"exp": exp, "checkpoint": epoch, "run": run, "kind": kind,
-               "seed_pool": "demos" if kind == "train_seeds" else "test"}
+        if kind == "validation":  # a lever: the first episodes of the validation pool's shuffle
+            seeds = validation_seeds(config["evaluation"], validation_episodes, seed)
+        else:
+            episode_seeds = list(open_store(frames).attrs["episode_seeds"]) if kind == "train_seeds" else None
+            seeds = seeds_for(kind, config["evaluation"], seed, run, episode_seeds)
+        pool = {"train_seeds": "demos", "validation": "validation"}.get(kind, "test")
+        ids = {"exp": exp, "checkpoint": epoch, "run": run, "kind": kind, "seed_pool": pool}
         episodes, steps = closed_loop.run(loop, seeds, ids, progress)
     finally:
         loop.close()

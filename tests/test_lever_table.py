@@ -1,0 +1,62 @@
+"""The levers table: each lever beside its experiment's baseline, tested on the same validation episodes."""
+
+import polars as pl
+import pytest
+from scipy.stats import fisher_exact
+
+from ocpipe.config import validate as C
+from ocpipe.config.experiments import resolve, resolve_lever
+from ocpipe.study import levers
+
+
+def _files(tmp_path, name, successes, n=20, seconds=(30.0, 30.0), err=0.01, readout=True):
+    d = tmp_path / name
+    d.mkdir()
+    pl.DataFrame({"epoch": [1, 2], "seconds": list(seconds), "val_joint_err_rad": [0.02, err]}).write_parquet(
+        d / "log.parquet")
+    pl.DataFrame({"seed": list(range(n)), "success": [i < successes for i in range(n)],
+                  "trivial": [False] * n}).write_parquet(d / "eps.parquet")
+    est = [[0.01, 0.0, 0.02]] * 3 if readout else [[float("nan")] * 3] * 3
+    pl.DataFrame({"obj_est": est, "obj_pos": [[0.0, 0.0, 0.02]] * 3,
+                  "is_grasped": [False, False, True]}).write_parquet(d / "steps.parquet")
+    return d / "log.parquet", d / "eps.parquet", d / "steps.parquet"
+
+
+def test_each_lever_is_tested_against_its_experiments_baseline(tmp_path):
+    config = {"profile": "test", "levers": {"episodes": 20, "sets": {
+        "a": {"experiment": "goal2d"}, "a_off": {"experiment": "goal2d", "policy": {"visual_dropout": 0.0}},
+        "b": {"experiment": "goal3d", "policy": {"visual_head": "none"}}}}}
+    inputs = {"a": _files(tmp_path, "a", 4), "a_off": _files(tmp_path, "a_off", 14, err=0.02),
+              "b": _files(tmp_path, "b", 9, readout=False)}
+    table = levers.write(config, inputs, tmp_path / "levers.csv", tmp_path / "levers.md")
+    rows = {r["Lever"]: r for r in table.iter_rows(named=True)}
+    assert rows["a"]["Changes"] == "baseline" and rows["a"]["p vs baseline"] is None
+    assert rows["a_off"]["Changes"] == "visual_dropout=0.0"
+    assert (rows["a_off"]["Successes"], rows["a_off"]["Episodes"], rows["a_off"]["SR"]) == (14, 20, 0.7)
+    assert rows["a_off"]["p vs baseline"] == pytest.approx(fisher_exact([[14, 6], [4, 16]])[1])
+    assert rows["a_off"]["p vs baseline"] < 0.05  # 14/20 against 4/20 is resolved
+    assert rows["b"]["p vs baseline"] is None  # goal3d has no baseline lever here
+    assert rows["a"]["Train min"] == 1.0 and rows["a_off"]["Open-loop joint error (rad)"] == 0.02
+    assert rows["a"]["Read-out error (cm)"] == 1.0 and rows["b"]["Read-out error (cm)"] is None
+    md = (tmp_path / "levers.md").read_text()
+    assert "same 20 seeds of the validation pool" in md and "| a_off | goal2d | visual_dropout=0.0 |" in md
+    assert pl.read_csv(tmp_path / "levers.csv")["Lever"].to_list() == ["a", "a_off", "b"]
+
+
+def test_a_lever_resolves_over_its_experiment_and_bad_levers_are_named(default_config):
+    lever = resolve_lever(default_config, "goal2d_readout_only")
+    assert lever == {**resolve(default_config, "goal2d"), "visual_head": "none", "object_readout": True,
+                     "name": "goal2d_readout_only"}
+    sets = default_config["levers"]["sets"]
+    bad = {**default_config, "levers": {"episodes": 500, "sets": {
+        **sets, "x": {"experiment": "nope"}, "y": {"experiment": "goal2d", "policy": {"visual_head": "none",
+                                                                                       "object_readout": False}}}}}
+    with pytest.raises(C.ConfigError) as err:
+        C.validate(bad)
+    msg = str(err.value)
+    assert "levers.episodes: 500 episodes per lever, but the validation pool holds 200 seeds" in msg
+    assert "levers.sets.x.experiment: 'nope' is not defined under experiments" in msg
+    assert "levers.sets.y.policy.visual_head" in msg
+    with pytest.raises(C.ConfigError, match="levers.sets.z.policy.widht"):
+        C.validate({**default_config, "levers": {"episodes": 2, "sets": {"z": {"experiment": "goal2d",
+                                                                                "policy": {"widht": 3}}}}})

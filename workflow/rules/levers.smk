@@ -1,0 +1,64 @@
+# Levers (config `levers.sets`): candidate changes to the recipe, each trained once and evaluated on the validation
+# pool, never on a table's seeds; the levers table sets each beside its experiment's baseline.
+
+
+use rule train as lever_train with:
+    input:
+        unpack(lever_train_inputs),
+    output:
+        checkpoints=directory(f"{paths.LEVER}/checkpoints"),
+        log=f"{paths.LEVER}/train_log.parquet",
+    log:
+        "results/logs/lever_train/{lever}.log",
+    benchmark:
+        "results/benchmarks/lever_train/{lever}.tsv"
+    params:
+        policy=lever_of,
+        seed=config["seed"],
+        camera_approx=config["camera_approx"],
+
+
+rule lever_eval:
+    input:
+        unpack(lever_eval_inputs),
+    output:
+        episodes=f"{paths.LEVER_EVAL}.episodes.parquet",
+        steps=f"{paths.LEVER_EVAL}.steps.parquet",
+    log:
+        "results/logs/lever_eval/{lever}.log",
+    benchmark:
+        "results/benchmarks/lever_eval/{lever}.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
+    threads: threads_of("evaluate")
+    resources:
+        **resources_of("evaluate"),
+    params:
+        policy=lever_of,
+        evaluation=config["evaluation"],
+        cfg=cfg("sim", "cameras", "camera_approx", "frames", "encoders"),
+        seed=config["seed"],
+        episodes=config["levers"]["episodes"],
+    script:
+        "../scripts/lever_eval.py"
+
+
+rule levers:
+    """The levers table: results/tables/levers.{csv,md}."""
+    input:
+        [f for files in LEVER_FILES.values() for f in files],
+    output:
+        csv=f"{paths.TABLE_DIR}/levers.csv",
+        md=f"{paths.TABLE_DIR}/levers.md",
+    log:
+        "results/logs/levers.log",
+    benchmark:
+        "results/benchmarks/levers.tsv"
+    localrule: True
+    conda:
+        "../envs/ocpipe.yaml"
+    params:
+        cfg=cfg("profile", "levers"),
+        files=LEVER_FILES,
+    script:
+        "../scripts/levers.py"
