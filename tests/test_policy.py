@@ -161,7 +161,7 @@ def test_a_joints7_tcp_policy_trains_on_the_stores_tcp_and_keeps_its_stats(tmp_p
           progress=False)
     model, policy, _ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0001.pt")
     assert policy.network.proprio == "joints7_tcp" and model.normalizer.proprio.mean.shape == (10,)
-    assert model.proprio[0].in_features == 10
+    assert model.sources[1].net[0].in_features == 10  # the proprioception source
 
 
 def batch_of(policy, features, frames, n=8):

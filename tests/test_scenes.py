@@ -119,7 +119,7 @@ def test_a_readout_fitted_on_scenes_reads_them_and_stays_frozen(tmp_path, standa
     train(policy, 0, feats, frames, tmp_path / "run", progress=False, scenes_path=tmp_path / "s.zarr")
     ckpts = [torch.load(tmp_path / "run" / "checkpoints" / f"epoch_000{e}.pt", weights_only=False)["model"]
              for e in (1, 2)]
-    readout = [k for k in ckpts[0] if k.startswith("object_readout.")]
+    readout = [k for k in ckpts[0] if k.startswith("sources.3.readout.")]  # the object source, after the goal
     assert readout and all(torch.equal(ckpts[0][k], ckpts[1][k]) for k in readout)
     assert any(not torch.equal(ckpts[0][k], ckpts[1][k]) for k in ckpts[0] if k.startswith("decoder."))
 

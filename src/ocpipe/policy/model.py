@@ -1,28 +1,24 @@
 """The Autoregressive Multimodal Sequence Policy (docs/study.md, Policy).
 
-Per timestep the sequence holds, in this order: the visual tokens of every camera used, one proprioception token
-(3-layer MLP), one goal token (2d: 3-layer MLP of the 4-vector; 3d: linear of xyz; absent for goal 'none') and
-one learnable action token. Learned positional embeddings cover the whole T-step sequence; a causal GPT-style
-decoder (pre-norm) runs over it, and the current step's action token is read out by a 3-layer MLP into
-H x 8 actions (joints z-scored, gripper raw). With `gripper: bce` a separate 3-layer MLP gives H gripper logits.
+Per timestep the sequence holds one group of tokens per source, in this order: the visual tokens of every camera
+used, one proprioception token (3-layer MLP), one goal token (2d: 3-layer MLP; 3d: linear; no token for goal
+'none'), one object token (the object read-out's pose estimate, with `object_readout`) and one learnable action
+token. Learned positional embeddings cover the whole T-step sequence; a causal GPT-style decoder (pre-norm) runs
+over it, and the current step's action token is read out into H x 8 actions (joints in model units, gripper raw,
+or a separate gripper logit with `gripper: bce`).
 
-Departures from the study, each off in config/thesis.yaml: `token_norm: zscore` standardizes every visual token
-dimension with training-set statistics held in the model (the frozen encoders' dimensions differ in scale by
-orders of magnitude, and a 64-wide projection trained for a few epochs does not undo that); `aux_object_weight`
-> 0 adds a head that predicts the manipulated object's position from the current action token, so the features
-the action read-out uses must carry where the object is; `object_readout` adds, per step, a token made
-from an MLP's read-out of the object's pose (position, sin/cos of 4x yaw: what the privileged-state control sees)
-from that step's frozen tokens, trained on the frames store's poses and passed on without gradient, so the
-policy gets an explicit object estimate it cannot reshape to fit the actions; with `readout_scenes` that read-out
-is fitted before the policy, on the demos' frames plus many extra scenes, and frozen (training.fit_readout). The
-read-out standardizes its input per token dimension like the visual tokens, or (`readout_standardize: element`)
-per camera, slot and dimension with its own statistics: slots keep their own offsets, which the pooled statistics
-leave in and which cost the read-out half its precision. `visual_dropout` blanks a
-training step's standardized visual tokens (to their mean) with that chance, and `visual_head: none` leaves them out
-altogether: with 100 demos the policy can fit its actions to the slots' many dimensions instead of to the read-out's
-estimate, and then acts on the slots' imprecise object position in closed loop. `goal_relative: tcp` widens the
-goal input with the goal minus the TCP (for the 2D goal: the TCP projected into each image like the goal): how far
-the hand still has to go, which the policy otherwise has to work out from the joints."""
+    raw inputs --Normalizer--> standardized --TokenSource each--> (B, T, n_s, W) --cat + pos--> (B, T*S, W)
+    --causal decoder--> action token of the last step (B, W) --ActionHead--> (B, H, 8)
+
+Departures from the study, each off in config/thesis.yaml (what each measured: docs/results.md): `token_norm`
+standardizes every visual token dimension (the Normalizer); `aux_object_weight` > 0 adds a head that predicts
+the object's position from the action token; `object_readout` adds the object token: an MLP's read-out of the
+object's pose (position, sin/cos of 4x yaw: what the privileged-state control sees) from that step's frozen
+tokens, trained on the stores' poses (with `readout_scenes`: fitted first on many extra scenes, then frozen) and
+passed on without gradient, so the policy gets an estimate it cannot reshape to fit the actions;
+`visual_dropout` blanks a training step's standardized visual tokens (to their mean) with that chance, so the
+policy also learns to act from the read-out, joints and goal; `visual_head: none` leaves the visual tokens out;
+`goal_relative: tcp` widens the goal with the goal minus the TCP."""
 
 from __future__ import annotations
 
@@ -51,6 +47,92 @@ def goal_dims(policy: PolicySettings) -> int:
     return GOAL_DIMS[policy.goal.kind] * (2 if policy.goal.relative == "tcp" else 1)
 
 
+class Inputs(NamedTuple):
+    """One batch of standardized inputs, as the token sources read them."""
+
+    z: torch.Tensor  # (B, T, C, K, D) visual tokens
+    proprio: torch.Tensor  # (B, T, P)
+    goal: torch.Tensor  # (B, T, G)
+    readout_in: torch.Tensor  # (B, T, C * K * D): the object read-out's input
+    readout_seen: torch.Tensor | None  # (B, T, 5): a pose to see in place of the read-out's own
+
+
+class VisualSource(nn.Module):
+    """Standardized tokens (B, T, C, K, D) -> (B, T, C * k, W): through the visual head (and fusion); in training,
+    whole steps are blanked with chance ``dropout``."""
+
+    def __init__(self, head: nn.Module, fusion: nn.Module | None, dropout: float, cams: int):
+        super().__init__()
+        self.head, self.fusion, self.dropout = head, fusion or nn.Identity(), dropout
+        self.tokens_out = cams * head.tokens_out
+
+    def forward(self, x: Inputs):
+        z = x.z
+        if self.training and self.dropout > 0:  # blank whole steps: the policy must act without the slots
+            z = z.masked_fill(torch.rand(*z.shape[:2], 1, 1, 1, device=z.device) < self.dropout, 0.0)
+        return self.fusion(self.head(z)).flatten(2, 3), None
+
+
+class VectorSource(nn.Module):
+    """One token per step from a vector input (proprio or goal): (B, T, n) -> (B, T, 1, W)."""
+
+    def __init__(self, field: str, net: nn.Module):
+        super().__init__()
+        self.field, self.net, self.tokens_out = field, net, 1
+
+    def forward(self, x: Inputs):
+        return self.net(getattr(x, self.field))[:, :, None], None
+
+
+class ObjectSource(nn.Module):
+    """The object token: the read-out's pose estimate (B, T, 5) of each step, seen without gradient (or the pose
+    given in its place), projected to (B, T, 1, W); the estimate itself comes out beside it for its loss."""
+
+    def __init__(self, inputs: int, width: int):
+        super().__init__()
+        self.readout = mlp([inputs, 4 * width, 4 * width, STATE_DIMS])
+        self.token = nn.Linear(STATE_DIMS, width)
+        self.tokens_out = 1
+
+    def forward(self, x: Inputs):
+        pose = self.readout(x.readout_in)
+        seen = pose.detach() if x.readout_seen is None else x.readout_seen
+        return self.token(seen)[:, :, None], pose
+
+
+def token_sources(policy: PolicySettings, K: int, D: int, W: int) -> nn.ModuleList:
+    """The sources of one step's tokens, in sequence order; built in this order, each draws its initial weights
+    from the seeded generator in turn (the action token's place: between the goal and the object)."""
+    heads, cams = policy.network.heads, len(policy.stores.cameras)
+    head = HEADS[policy.visual.head](K, D, W, heads)
+    fusion = CrossCameraFusion(W, heads) if policy.visual.fusion == "cross_attention" else None
+    sources = [VisualSource(head, fusion, policy.visual.dropout, cams),
+               VectorSource("proprio", mlp([PROPRIO_DIMS[policy.network.proprio], W, W, W]))]
+    G = goal_dims(policy)
+    if policy.goal.kind == "2d":
+        sources.append(VectorSource("goal", mlp([G, W, W, W])))
+    elif policy.goal.kind == "3d":
+        sources.append(VectorSource("goal", nn.Linear(G, W)))
+    return nn.ModuleList(sources)
+
+
+class ActionHead(nn.Module):
+    """The current step's action token (B, W) -> (B, H, 8): joints (tanh-squashed with action_head 'tanh') and the
+    gripper, from one 3-layer MLP or (gripper 'bce') a second MLP giving its logit."""
+
+    def __init__(self, policy: PolicySettings, W: int):
+        super().__init__()
+        self.H, bce = policy.network.horizon, policy.network.gripper == "bce"
+        self.net = mlp([W, W, W, self.H * (7 if bce else 8)])
+        self.gripper = mlp([W, W, W, self.H]) if bce else None
+        self.squash = nn.Tanh() if policy.network.action_head == "tanh" else nn.Identity()
+
+    def forward(self, act):
+        out = self.net(act).reshape(len(act), self.H, -1)  # (B, H, 8), or (B, H, 7) joints beside a gripper MLP
+        grip = out[..., 7:] if self.gripper is None else self.gripper(act).reshape(len(act), self.H, 1)
+        return torch.cat([self.squash(out[..., :7]), grip], -1)
+
+
 class SequencePolicy(nn.Module):
     """The policy; ``K``, ``D``: tokens per camera and their width in the features store. Its Normalizer holds
     every statistic (identity until fitted), so a checkpoint's state dict is the whole policy."""
@@ -58,42 +140,28 @@ class SequencePolicy(nn.Module):
     def __init__(self, policy: PolicySettings | dict, K: int, D: int):
         super().__init__()
         policy = PolicySettings.of(policy)
-        W, heads = policy.network.width, policy.network.heads
-        self.T, self.H = policy.network.window, policy.network.horizon
-        self.cams = len(policy.stores.cameras)
-        self.tanh = policy.network.action_head == "tanh"
-        self.visual_dropout = policy.visual.dropout
-        self.bce = policy.network.gripper == "bce"
-        P, G = PROPRIO_DIMS[policy.network.proprio], goal_dims(policy)
-        self.normalizer = Normalizer(policy, K, D, self.cams, P, G)
-        # modules in this order: each draws its initial weights from the seeded generator in turn
-        self.visual = HEADS[policy.visual.head](K, D, W, heads)
-        self.fusion = CrossCameraFusion(W, heads) if policy.visual.fusion == "cross_attention" else None
-        self.proprio = mlp([P, W, W, W])
-        # only the goal module in use is built: no init draws for the others
-        kind = policy.goal.kind
-        self.goal = mlp([G, W, W, W]) if kind == "2d" else nn.Linear(G, W) if kind == "3d" else None
+        W, cams = policy.network.width, len(policy.stores.cameras)
+        self.T = policy.network.window
+        self.normalizer = Normalizer(policy, K, D, cams, PROPRIO_DIMS[policy.network.proprio], goal_dims(policy))
+        self.sources = token_sources(policy, K, D, W)
         self.action_token = nn.Parameter(torch.zeros(W))
-        readout = policy.readout.enabled
-        self.object_readout = mlp([self.cams * K * D, 4 * W, 4 * W, STATE_DIMS]) if readout else None
-        self.object_token = nn.Linear(STATE_DIMS, W) if readout else None
-        # per step: the visual tokens of every camera, proprio, goal, object read-out, action
-        self.per_step = self.cams * self.visual.tokens_out + 1 + (self.goal is not None) + readout + 1
+        if policy.readout.enabled:
+            self.sources.append(ObjectSource(cams * K * D, W))
+        self.per_step = sum(s.tokens_out for s in self.sources) + 1  # + the action token
         self.pos = nn.Parameter(torch.zeros(self.T * self.per_step, W))
-        layer = nn.TransformerEncoderLayer(W, heads, 4 * W, dropout=policy.network.dropout, activation="gelu",
-                                           batch_first=True, norm_first=True)
+        layer = nn.TransformerEncoderLayer(W, policy.network.heads, 4 * W, dropout=policy.network.dropout,
+                                           activation="gelu", batch_first=True, norm_first=True)
         self.decoder = nn.TransformerEncoder(layer, policy.network.layers, enable_nested_tensor=False)
         self.norm = nn.LayerNorm(W)
-        self.readout = mlp([W, W, W, self.H * (7 if self.bce else 8)])
-        self.gripper_head = mlp([W, W, W, self.H]) if self.bce else None
+        self.action_head = ActionHead(policy, W)
         self.aux_head = mlp([W, W, 3]) if policy.training.aux_object_weight > 0 else None
         nn.init.normal_(self.pos, std=0.02)
         nn.init.normal_(self.action_token, std=0.02)
 
-    def _visual(self, z):
-        """Standardized tokens (B, T, C, K, D) -> (B, T, C, k, W)."""
-        vis = self.visual(z)
-        return self.fusion(vis) if self.fusion is not None else vis
+    @property
+    def object_readout(self) -> nn.Module | None:
+        """The object read-out MLP (None without one)."""
+        return next((s.readout for s in self.sources if isinstance(s, ObjectSource)), None)
 
     def object_pose(self, tokens):
         """Raw tokens (..., C, K, D) -> the read-out's standardized object pose (..., 5)."""
@@ -108,19 +176,11 @@ class SequencePolicy(nn.Module):
         if T != self.T:
             raise ValueError(f"policy expects windows of T={self.T} steps, got {T}")
         norm = self.normalizer
-        z = norm.tokens(tokens)
-        if self.training and self.visual_dropout > 0:  # blank whole steps: the policy must act without the slots
-            blank = torch.rand(B, T, 1, 1, 1, device=z.device) < self.visual_dropout
-            z = z.masked_fill(blank, 0.0)
-        parts = [self._visual(z).flatten(2, 3), self.proprio(norm.proprio(proprio))[:, :, None]]
-        if self.goal is not None:
-            parts.append(self.goal(norm.goal(goal))[:, :, None])
-        readout = None
-        if self.object_readout is not None:
-            readout = self.object_pose(tokens)
-            seen = readout.detach() if readout_seen is None else readout_seen
-            parts.append(self.object_token(seen)[:, :, None])
-        parts.append(self.action_token.expand(B, T, 1, -1))
+        x = Inputs(norm.tokens(tokens), norm.proprio(proprio), norm.goal(goal), norm.readout_input(tokens),
+                   readout_seen)
+        outs = [source(x) for source in self.sources]  # (B, T, n_s, W) and the read-out's pose (or None)
+        parts = [t for t, _ in outs] + [self.action_token.expand(B, T, 1, -1)]
+        readout = next((pose for _, pose in outs if pose is not None), None)
         return torch.cat(parts, dim=2).flatten(1, 2) + self.pos, readout
 
     def action_states(self, seq):
@@ -135,16 +195,8 @@ class SequencePolicy(nn.Module):
         policy has no such head. ``readout_seen``: see tokens."""
         seq, readout = self.tokens(tokens, proprio, goal, readout_seen)
         act = self.action_states(seq)[:, -1]  # (B, W): the current step's action token
-        B = act.shape[0]
-        out = self.readout(act)
-        if self.bce:
-            out = torch.cat([out.reshape(B, self.H, 7), self.gripper_head(act).reshape(B, self.H, 1)], -1)
-        else:
-            out = out.reshape(B, self.H, 8)
-        if self.tanh:
-            out = torch.cat([torch.tanh(out[..., :7]), out[..., 7:]], -1)
         obj = self.aux_head(act) if self.aux_head is not None else None
-        return PolicyOutput(out, readout, obj)
+        return PolicyOutput(self.action_head(act), readout, obj)
 
 
 def loss_terms(pred: torch.Tensor, target: torch.Tensor, weights: torch.Tensor, bce: bool) -> dict[str, torch.Tensor]:
