@@ -7,7 +7,7 @@ token is read from the frames store in training and from the simulator in evalua
 rendered. Yaw enters as sin/cos of 4x yaw: a cube looks the same after a quarter turn, so poses that differ by
 90 degrees get one encoding. With ``tcp_relative`` the token also holds the object's offset from the TCP: the
 policy then reads how far the gripper still has to go instead of working the difference out from two
-separately normalized inputs (control SR 60 -> 74-84 of 100 held-out episodes, docs/measurements.md)."""
+separately normalized inputs (docs/journal.md, "The control's missing piece")."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Labelled extra scenes for the object read-out: frozen tokens of scenes no demo shows, with the object's pose.
 
 A features store of N demos shows the object at N places only, and a read-out of its position fitted on those
-frames learns those places rather than where the object is (docs/measurements.md, "Is the cube in the tokens?").
+frames learns those places rather than where the object is (docs/journal.md, "Is the cube in the tokens?").
 These scenes are resets of seeds outside the demo and evaluation pools, each with the arm put in a pre-grasp pose
 of a random demo frame (the frames store's `qpos` where nothing is grasped), rendered by the study's cameras and
 encoded by the same frozen encoder as the features store. A share ``near_fraction`` of them also moves the object
