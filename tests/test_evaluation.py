@@ -177,24 +177,39 @@ def test_table5_2_counts_and_percentages(tmp_path):
     assert t["Drop %"] == pytest.approx(50.0)
 
 
-def test_best_checkpoint_prefers_sr_then_open_loop_error_then_return(tmp_path):
+def sweep_files(tmp_path, results):
+    """One sweep file per (epoch, successes, episodes, mean return)."""
     files = []
-    for epoch, succ, ret in ((10, [True, False], 3.0), (20, [True, False], 5.0), (30, [False, False], 9.0)):
+    for epoch, k, n, ret in results:
         f = tmp_path / f"epoch_{epoch}.episodes.parquet"
-        episodes(0, succ, [50, 100]).with_columns(
+        episodes(0, [True] * k + [False] * (n - k), [50] * n).with_columns(
             pl.lit(epoch).alias("checkpoint"), pl.lit(ret).alias("return")
         ).write_parquet(f)
         files.append(f)
-    assert jobs.best_checkpoint(files)["epoch"] == 20
+    return files
+
+
+def test_best_checkpoint_takes_the_sweep_leader_only_where_fisher_resolves_it(tmp_path):
     log = tmp_path / "train_log.parquet"
-    pl.DataFrame(
-        {"epoch": [10, 20, 30], "val_joint_err_rad": [0.3, 0.2, 0.1], "val_gripper_agree": [0.7, 0.8, 0.9]}
-    ).write_parquet(log)
-    sweep = {r["checkpoint"]: r for r in jobs.best_checkpoint(files, log)["sweep"]}
-    assert sweep[20]["val_joint_err_rad"] == 0.2 and sweep[30]["val_gripper_agree"] == 0.9
-    # equal SR: the lower open-loop error wins over the higher return
-    pl.DataFrame({"epoch": [10, 20, 30], "val_joint_err_rad": [0.1, 0.2, 0.3]}).write_parquet(log)
-    assert jobs.best_checkpoint(files, log)["epoch"] == 10
+    pl.DataFrame({"epoch": [8, 16], "val_joint_err_rad": [0.0119, 0.0108]}).write_parquet(log)
+    # 3/6 against 1/6 (one-sided p = 0.27): the lower open-loop error decides
+    best = jobs.best_checkpoint(sweep_files(tmp_path, ((8, 3, 6, 1.0), (16, 1, 6, 1.0))), log)
+    assert (best["epoch"], best["chosen_by"]) == (16, "open-loop error")
+    assert best["sweep_p"] == pytest.approx(0.2727, abs=1e-3)
+    sweep = {r["checkpoint"]: r for r in best["sweep"]}
+    assert (sweep[8]["successes"], sweep[8]["episodes"], sweep[16]["val_joint_err_rad"]) == (3, 6, 0.0108)
+    # 15/20 against 3/20 resolves it
+    best = jobs.best_checkpoint(sweep_files(tmp_path, ((8, 15, 20, 1.0), (16, 3, 20, 1.0))), log)
+    assert (best["epoch"], best["chosen_by"]) == (8, "sweep SR") and best["sweep_p"] < 0.05
+    # alpha is the caller's: at 0.5 the 3/6 leader is taken
+    assert jobs.best_checkpoint(sweep_files(tmp_path, ((8, 3, 6, 1.0), (16, 1, 6, 1.0))), log, alpha=0.5)["epoch"] == 8
+
+
+def test_best_checkpoint_without_open_loop_error_falls_back_to_return_then_epoch(tmp_path):
+    files = sweep_files(tmp_path, ((10, 1, 2, 3.0), (20, 1, 2, 5.0), (30, 0, 2, 9.0)))
+    assert jobs.best_checkpoint(files)["epoch"] == 30
+    files = sweep_files(tmp_path, ((10, 1, 2, 5.0), (20, 1, 2, 5.0)))
+    assert jobs.best_checkpoint(files)["epoch"] == 20
 
 
 def test_report_writes_tables_from_run_files(tmp_path, default_config):

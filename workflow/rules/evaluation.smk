@@ -66,6 +66,8 @@ rule best:
     threads: threads_of("light")
     resources:
         **resources_of("light"),
+    params:
+        alpha=config["evaluation"]["sweep_alpha"],
     script:
         "../scripts/best.py"
 

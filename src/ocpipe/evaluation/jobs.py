@@ -58,31 +58,45 @@ def training_seeds(evaluation_cfg: dict, episode_seeds: list[int], seed: int) ->
 OPEN_LOOP_COLUMNS = ("val_joint_err_rad", "val_first_joint_err_rad", "val_gripper_agree")
 
 
-def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None = None) -> dict:
-    """The checkpoint with the highest sweep SR; ties go to the lower open-loop joint error on the held-out demos
-    (with ``train_log`` and held-out demos), then the higher mean return, then the later epoch.
+def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None = None, alpha: float = 0.05) -> dict:
+    """The checkpoint the sweep's episodes can tell apart from the rest, else the one with the lowest open-loop
+    joint error on the held-out demos.
 
-    With ``train_log``, each sweep row also carries that epoch's open-loop error on the held-out demos, so a
-    checkpoint's closed-loop SR and its open-loop error sit side by side. A sweep of a few episodes ties often
-    (0/6 against 0/6), and then the open-loop error over every frame of the held-out demos says more than the mean
-    return of those few episodes: in one default build the return picked goal3d's epoch 8 (0.0164 rad), which
-    succeeded in 1 of 60 stability episodes, over epoch 16 (0.0138 rad), which succeeds in 16 of 100."""
+    The default choice is the lowest open-loop error (with ``train_log``; ties and no log: the higher mean return,
+    then the later epoch). The checkpoint with the highest sweep SR replaces it only where Fisher's exact test
+    (one-sided) says its successes beat the default's at p < ``alpha``. A sweep of a few episodes resolves almost
+    nothing: in one default build 3/6 against 1/6 (p = 0.27) picked goal3d's epoch 8, which then succeeded in 21 of
+    119 stability episodes, while the later epoch had the lower open-loop error.
+
+    Each sweep row carries its epoch's open-loop error, so closed-loop SR and open-loop error sit side by side."""
+    from scipy.stats import fisher_exact
+
     log = pl.read_parquet(train_log) if train_log else None
     rows = []
     for f in sweep_files:
         eps = pl.read_parquet(f)
+        kept = eps.filter(~pl.col("trivial"))  # trivial successes count in neither numerator nor total
         row = {"checkpoint": int(eps["checkpoint"][0]), "sr": closed_loop.success_rate(eps),
-               "mean_return": float(eps["return"].mean()), "episodes": len(eps)}
+               "successes": int(kept["success"].sum()), "mean_return": float(eps["return"].mean()),
+               "episodes": len(kept)}
         if log is not None:
             at = log.filter(pl.col("epoch") == row["checkpoint"])
             row.update({c: float(at[c][0]) for c in OPEN_LOOP_COLUMNS if c in at.columns and len(at)})
         rows.append(row)
-    def rank(r):
-        sr, err = r["sr"], r.get("val_joint_err_rad", float("nan"))
-        return (-1.0 if math.isnan(sr) else sr, 0.0 if math.isnan(err) else -err, r["mean_return"], r["checkpoint"])
 
-    rows.sort(key=rank)
-    return {"epoch": rows[-1]["checkpoint"], "sweep": rows}
+    def open_loop_rank(r):
+        err = r.get("val_joint_err_rad", float("nan"))
+        return (0.0 if math.isnan(err) else -err, r["mean_return"], r["checkpoint"])
+
+    default = max(rows, key=open_loop_rank)
+    leader = max(rows, key=lambda r: (r["successes"] / max(r["episodes"], 1), open_loop_rank(r)))
+    table = [[leader["successes"], leader["episodes"] - leader["successes"]],
+             [default["successes"], default["episodes"] - default["successes"]]]
+    p = 1.0 if leader is default else float(fisher_exact(table, alternative="greater").pvalue)
+    resolved = p < alpha
+    rows.sort(key=open_loop_rank)
+    return {"epoch": (leader if resolved else default)["checkpoint"],
+            "chosen_by": "sweep SR" if resolved else "open-loop error", "sweep_p": p, "alpha": alpha, "sweep": rows}
 
 
 def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_ckpt, out_episodes, out_steps,
@@ -121,7 +135,7 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
     return episodes
 
 
-def write_best(sweep_files, out_json, train_log=None) -> dict:
-    best = best_checkpoint(sweep_files, train_log)
+def write_best(sweep_files, out_json, train_log=None, alpha: float = 0.05) -> dict:
+    best = best_checkpoint(sweep_files, train_log, alpha)
     write_json(out_json, best)
     return best
