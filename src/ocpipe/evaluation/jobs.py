@@ -11,6 +11,7 @@ import polars as pl
 
 from ..config.seed_pools import pool_problems, pools, table_blocks
 from ..frames.store import open_store
+from ..study import stats
 from ..util.atomic import atomic_path, write_json
 from . import closed_loop
 
@@ -58,7 +59,8 @@ def training_seeds(evaluation_cfg: dict, episode_seeds: list[int], seed: int) ->
 OPEN_LOOP_COLUMNS = ("val_joint_err_rad", "val_first_joint_err_rad", "val_gripper_agree")
 
 
-def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None = None, alpha: float = 0.05) -> dict:
+def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None = None,
+                    alpha: float = stats.ALPHA) -> dict:
     """The checkpoint the sweep's episodes can tell apart from the rest, else the one with the lowest open-loop
     joint error on the held-out demos.
 
@@ -69,16 +71,13 @@ def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None 
     119 stability episodes, while the later epoch had the lower open-loop error.
 
     Each sweep row carries its epoch's open-loop error, so closed-loop SR and open-loop error sit side by side."""
-    from scipy.stats import fisher_exact
-
     log = pl.read_parquet(train_log) if train_log else None
     rows = []
     for f in sweep_files:
         eps = pl.read_parquet(f)
-        kept = eps.filter(~pl.col("trivial"))  # trivial successes count in neither numerator nor total
-        row = {"checkpoint": int(eps["checkpoint"][0]), "sr": closed_loop.success_rate(eps),
-               "successes": int(kept["success"].sum()), "mean_return": float(eps["return"].mean()),
-               "episodes": len(kept)}
+        k, n = stats.successes(eps)
+        row = {"checkpoint": int(eps["checkpoint"][0]), "sr": closed_loop.success_rate(eps), "successes": k,
+               "mean_return": float(eps["return"].mean()), "episodes": n}
         if log is not None:
             at = log.filter(pl.col("epoch") == row["checkpoint"])
             row.update({c: float(at[c][0]) for c in OPEN_LOOP_COLUMNS if c in at.columns and len(at)})
@@ -89,10 +88,9 @@ def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None 
         return (0.0 if math.isnan(err) else -err, r["mean_return"], r["checkpoint"])
 
     default = max(rows, key=open_loop_rank)
-    leader = max(rows, key=lambda r: (r["successes"] / max(r["episodes"], 1), open_loop_rank(r)))
-    table = [[leader["successes"], leader["episodes"] - leader["successes"]],
-             [default["successes"], default["episodes"] - default["successes"]]]
-    p = 1.0 if leader is default else float(fisher_exact(table, alternative="greater").pvalue)
+    leader = max(rows, key=lambda r: (-1.0 if math.isnan(r["sr"]) else r["sr"], open_loop_rank(r)))
+    counts = [(r["successes"], r["episodes"]) for r in (leader, default)]
+    p = 1.0 if leader is default else stats.fisher(*counts, "greater")
     resolved = p < alpha
     rows.sort(key=open_loop_rank)
     return {"epoch": (leader if resolved else default)["checkpoint"],
@@ -135,7 +133,7 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
     return episodes
 
 
-def write_best(sweep_files, out_json, train_log=None, alpha: float = 0.05) -> dict:
+def write_best(sweep_files, out_json, train_log=None, alpha: float = stats.ALPHA) -> dict:
     best = best_checkpoint(sweep_files, train_log, alpha)
     write_json(out_json, best)
     return best

@@ -38,7 +38,9 @@ def _rate(kn: tuple[int, int]) -> str:
     return f"{k}/{n} ({100 * k / n:.1f} %)" if n else f"{k}/0"
 
 
-def _fisher(a: tuple[int, int], b: tuple[int, int], alternative: str) -> float:
+def fisher(a: tuple[int, int], b: tuple[int, int], alternative: str) -> float:
+    """Fisher's exact test on two (successes, episodes) counts; ``alternative`` as scipy's ('greater': a's rate
+    above b's)."""
     table = [[a[0], a[1] - a[0]], [b[0], b[1] - b[0]]]
     return float(stats.fisher_exact(table, alternative=alternative).pvalue)
 
@@ -57,7 +59,7 @@ def rate_less(a: str, ka: tuple[int, int], b: str, kb: tuple[int, int], what: st
     """Claim: ``a``'s rate < ``b``'s (``strict``), or at most ``b``'s. Fisher's exact test, one-sided."""
     if not ka[1] or not kb[1]:
         return Check(f"{what} {a} vs {b}: no episodes", "Fisher exact, one-sided", None, "unresolved")
-    p_less, p_greater = _fisher(ka, kb, "less"), _fisher(ka, kb, "greater")
+    p_less, p_greater = fisher(ka, kb, "less"), fisher(ka, kb, "greater")
     seen = kb[0] / kb[1] - ka[0] / ka[1]
     sign = "<" if strict else "<="
     return Check(f"{what} {a} {_rate(ka)} {sign} {b} {_rate(kb)}", "Fisher exact, one-sided",
@@ -68,7 +70,7 @@ def rate_equal(a: str, ka: tuple[int, int], b: str, kb: tuple[int, int], what: s
     """Claim: the two rates are about the same. Violated when Fisher's two-sided test resolves them apart."""
     if not ka[1] or not kb[1]:
         return Check(f"{what} {a} vs {b}: no episodes", "Fisher exact, two-sided", None, "unresolved", False)
-    p = _fisher(ka, kb, "two-sided")
+    p = fisher(ka, kb, "two-sided")
     return Check(f"{what} {a} {_rate(ka)} ~ {b} {_rate(kb)}", "Fisher exact, two-sided", p,
                  "violated" if p < ALPHA else "holds", False)
 
