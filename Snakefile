@@ -57,9 +57,9 @@ rule stackcube:
         paths.FIGURE.format(figure="fig5_7"),
 
 
-rule all:
-    """Everything the study reports, with the attention maps (appendix E) of every store an experiment uses."""
-    default_target: True
+rule compute:
+    """Where the whole study's time went (results/tables/compute.{csv,md}), from every rule's benchmark file; it
+    runs last, after everything else `all` builds."""
     input:
         rules.encodings.input,
         experiment_encoding_targets(),
@@ -67,3 +67,29 @@ rule all:
         rules.ablations.input,
         rules.stackcube.input,
         f"{paths.TABLE_DIR}/findings.csv",
+    output:
+        csv=report(f"{paths.TABLE_DIR}/compute.csv", category="Tables", labels={"table": "compute"}),
+        md=f"{paths.TABLE_DIR}/compute.md",
+    log:
+        "results/logs/tables/compute.log",
+    benchmark:
+        "results/benchmarks/compute.tsv"
+    conda:
+        "workflow/envs/ocpipe.yaml"
+    threads: threads_of("light")
+    resources:
+        **resources_of("light"),
+    params:
+        cfg=TABLE_CFG,
+        benchmarks="results/benchmarks",
+    script:
+        "workflow/scripts/compute.py"
+
+
+rule all:
+    """Everything the study reports, with the attention maps (appendix E) of every store an experiment uses, and
+    the compute table of the run."""
+    default_target: True
+    input:
+        rules.compute.input,
+        rules.compute.output.csv,

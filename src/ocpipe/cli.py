@@ -1,11 +1,12 @@
 """Command-line helpers around the workflow: `ocpipe check-config`, `ocpipe check-store`, `ocpipe summary`,
-`ocpipe config-docs`."""
+`ocpipe config-docs`, `ocpipe compute`, `ocpipe record`."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from .config import validate
 from .config.errors import ConfigError
@@ -24,7 +25,36 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--check", action="store_true", help="only check that config/README.md is up to date (exit 1 if not)"
     )
+    p = sub.add_parser("compute", help="where a results folder's time went: print (and write) its compute table")
+    p.add_argument("results", nargs="?", default="results")
+    p.add_argument("--config", nargs="*", default=["config/config.yaml"], help="config files of that run")
+    p = sub.add_parser("record", help="copy a whole run's tables, findings and compute table into docs/results/")
+    p.add_argument("results", nargs="?", default="results")
+    p.add_argument("--out", default="docs/results")
+    p.add_argument("--command", default="time snakemake --cores 2 all", help="the command that made the run")
+    p.add_argument("--config", nargs="*", default=["config/config.yaml"], help="config files of that run")
     args = parser.parse_args(argv)
+
+    if args.cmd == "record":
+        from .study import record
+
+        try:
+            files = record.write(validate.load(*args.config), args.results, args.out, args.command,
+                                 record.commit_of(Path(args.results).resolve().parent))
+        except FileNotFoundError as err:
+            print(f"ocpipe: {err}", file=sys.stderr)
+            return 1
+        print(f"recorded {len(files)} files in {args.out}")
+        return 0
+
+    if args.cmd == "compute":
+        from .study import compute
+
+        out = f"{args.results}/tables"
+        compute.write(validate.load(*args.config), f"{args.results}/benchmarks", f"{out}/compute.csv",
+                      f"{out}/compute.md")
+        print(Path(out, "compute.md").read_text())
+        return 0
 
     if args.cmd == "config-docs":
         from .config import docs

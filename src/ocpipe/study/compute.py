@@ -1,0 +1,132 @@
+"""Where a run's time went, read from the rules' benchmark files (results/benchmarks/{rule}/{name}.tsv).
+
+Every job is charged to what it built: an experiment (training, sweep, stability, the rest), a store (demos,
+frames, features, scenes, an encoder's training) or a table (its own table, figure and findings jobs). Tables
+then add up in config order: each is charged what it builds first, so the per-table totals sum to the run.
+Core-minutes are the CPU time Snakemake measured for the job's process tree; job-minutes its wall time. The run's
+wall time spans the first job's start (a file's modification time less its seconds) to the last job's end."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import polars as pl
+
+from ..config.experiments import features_store, frames_store, resolve
+from ..util.atomic import atomic_path
+from .registry import FIGURES
+from .report import markdown
+from .tables import write_csv
+from .targets import experiments_of
+
+# benchmark folder -> (what the job builds, stage); the file name, less a shard/epoch/run suffix, names the thing
+EXPERIMENT_STAGES = {"train": "train", "sweep": "sweep", "stability": "stability", "best": "other",
+                     "failures": "other", "failure_run": "other", "train_seed_run": "other"}
+STORE_STAGES = {"demos_shard": "demos", "demos_merge": "demos", "demos_import": "demos",
+                "frames_shard": "frames", "frames_merge": "frames", "frames_report": "frames",
+                "features": "features", "features_diagnostics": "features", "attention_maps": "features",
+                "scenes": "scenes"}
+ENCODER_JOBS = {"train_slots_ssl": "slots_ssl", "train_spot_slots_on_dino": "spot"}
+SUFFIX = re.compile(r"(_shard\d+|_epoch_\d+|_run_\d+)$")
+STAGES = ("train", "sweep", "stability", "other", "demos", "frames", "features", "scenes", "encoder", "report")
+
+
+def read_jobs(bench_dir) -> pl.DataFrame:
+    """One row per benchmark file: its folder (the rule), name, seconds, CPU seconds and end time (file mtime)."""
+    rows = []
+    for f in sorted(Path(bench_dir).rglob("*.tsv")):
+        rel = f.relative_to(bench_dir)
+        last = f.read_text().strip().splitlines()[-1].split("\t")
+        folder = rel.parts[0] if len(rel.parts) > 1 else ""
+        rows.append({"folder": folder, "name": rel.stem, "seconds": float(last[0]), "cpu_seconds": float(last[9]),
+                     "end": f.stat().st_mtime})
+    if not rows:
+        raise FileNotFoundError(f"{bench_dir}: no benchmark files (has anything run here?)")
+    return pl.DataFrame(rows)
+
+
+def owner(folder: str, name: str) -> tuple[str, str, str]:
+    """(kind, what, stage) a job is charged to; kind is experiment, store, encoder, table or lever."""
+    base = SUFFIX.sub("", name)
+    if folder in EXPERIMENT_STAGES:
+        return "experiment", base, EXPERIMENT_STAGES[folder]
+    if folder in STORE_STAGES:
+        return "store", base, STORE_STAGES[folder]
+    if not folder and name in ENCODER_JOBS:
+        return "encoder", ENCODER_JOBS[name], "encoder"
+    if folder in ("tables", "figures"):
+        return "table", base, "report"
+    if folder.startswith("lever") or name == "levers":
+        return "lever", base, "lever"
+    return "other", f"{folder}/{name}".strip("/"), "other"
+
+
+def charged(jobs: pl.DataFrame) -> pl.DataFrame:
+    """Jobs summed by what they built and stage: kind, what, stage, jobs, job_min, core_min."""
+    owners = [owner(f, n) for f, n in zip(jobs["folder"], jobs["name"], strict=True)]
+    return (jobs.with_columns(kind=pl.Series([o[0] for o in owners]), what=pl.Series([o[1] for o in owners]),
+                              stage=pl.Series([o[2] for o in owners]))
+            .group_by("kind", "what", "stage", maintain_order=True)
+            .agg(jobs=pl.len(), job_min=(pl.col("seconds").sum() / 60).round(1),
+                 core_min=(pl.col("cpu_seconds").sum() / 60).round(1))
+            .sort("kind", "what", "stage"))
+
+
+def builds_of(config: dict, exp: str) -> set[tuple[str, str]]:
+    """(kind, what) an experiment needs built: itself, its stores, its task's demos and its encoder's training."""
+    p = resolve(config, exp)
+    out = {("experiment", exp), ("store", p["task"]), ("store", frames_store(p)), ("store", features_store(p)),
+           ("encoder", p["encoder"])}
+    if p["encoder"] == "slots_ssl":  # the encoder learns from its training stores' frames
+        out |= {("store", s) for s in config["encoders"]["slots_ssl"]["train_stores"]}
+        out |= {("store", s.split("_")[0]) for s in config["encoders"]["slots_ssl"]["train_stores"]}
+    return out
+
+
+def per_table(config: dict, totals: pl.DataFrame) -> pl.DataFrame:
+    """Each table, in config order, with the core- and job-minutes of what it builds first."""
+    cost = {(k, w): (j, c) for k, w, j, c in totals.select("kind", "what", "job_min", "core_min").iter_rows()}
+    seen: set[tuple[str, str]] = set()
+    rows = []
+    for table in config["tables"]:
+        wanted = {("table", table)} | {b for e in experiments_of(config, [table]) for b in builds_of(config, e)}
+        if table == "table5_1":  # figures 5.1-5.3 and the main findings come with the main job's table
+            wanted |= {("table", "fig5_1_to_5_3"), ("table", "findings_main")}
+        wanted |= {("table", f) for f, fig in FIGURES.items() if fig.table == table}
+        new = wanted - seen
+        seen |= new
+        rows.append({"table": table, "job_min": round(sum(cost.get(b, (0, 0))[0] for b in new), 1),
+                     "core_min": round(sum(cost.get(b, (0, 0))[1] for b in new), 1)})
+    rest = set(cost) - seen
+    rows.append({"table": "other (encodings, findings, levers)", "job_min": round(sum(cost[b][0] for b in rest), 1),
+                 "core_min": round(sum(cost[b][1] for b in rest), 1)})
+    return pl.DataFrame(rows)
+
+
+def wall_minutes(jobs: pl.DataFrame) -> float:
+    start = (jobs["end"] - jobs["seconds"]).min()
+    return round((jobs["end"].max() - start) / 60, 1)
+
+
+def write(config: dict, bench_dir, csv_path, md_path) -> pl.DataFrame:
+    jobs = read_jobs(bench_dir)
+    by_stage = charged(jobs)
+    totals = by_stage.group_by("kind", "what", maintain_order=True).agg(pl.col("job_min", "core_min").sum())
+    tables = per_table(config, totals)
+    write_csv(by_stage, csv_path)
+    wide = lambda kind: (by_stage.filter(pl.col("kind") == kind)  # noqa: E731
+                         .pivot(on="stage", index="what", values="core_min", aggregate_function="sum")
+                         .fill_null(0.0).with_columns(total=pl.sum_horizontal(pl.exclude("what")).round(1)))
+    wall = wall_minutes(jobs)
+    parts = [markdown(wide("experiment"), "Experiments: core-minutes by stage"),
+             markdown(wide("store"), "Stores: core-minutes by stage"),
+             markdown(wide("encoder"), "Encoders trained by the workflow: core-minutes"),
+             markdown(tables, "Tables: what each adds, in config order (minutes)")]
+    footer = (f"{len(jobs)} jobs, {jobs['cpu_seconds'].sum() / 60:.1f} core-minutes, "
+              f"{jobs['seconds'].sum() / 60:.1f} job-minutes; wall time {wall} min (first job's start to last "
+              f"job's end, from {bench_dir}'s files). Profile {config.get('profile', '?')}.")
+    text = "\n".join(parts) + f"\n{footer}\n"
+    with atomic_path(md_path) as tmp:
+        tmp.write_text(text)
+    return by_stage

@@ -1,0 +1,54 @@
+"""The record of a full run: its tables, findings and compute table copied as the pipeline wrote them into a folder
+under version control (docs/results/), with the commit and command that made them."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from datetime import datetime, timezone
+from pathlib import Path
+
+from ..util.atomic import atomic_path
+
+
+def recorded_files(config: dict, tables_dir) -> list[Path]:
+    """Every table of the config, the findings and the compute table, as .csv and .md; a missing one is an error
+    naming it (a record is of a whole run, never of part of one)."""
+    names = [*config["tables"], "findings", "compute"]
+    files = [Path(tables_dir, f"{n}.{ext}") for n in names for ext in ("csv", "md")]
+    missing = [str(f) for f in files if not f.is_file()]
+    if missing:
+        raise FileNotFoundError("not a whole run's tables (build them with `snakemake --cores 2 all`); missing: "
+                                + ", ".join(missing))
+    return files
+
+
+def commit_of(repo) -> str:
+    """HEAD's hash, marked where the working tree differs from it (the record then is not of that commit alone)."""
+    git = ["git", "-C", str(repo)]
+    head = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+    dirty = subprocess.run([*git, "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True,
+                           check=True).stdout.strip()
+    return f"{head} (with uncommitted changes)" if dirty else head
+
+
+def write(config: dict, results, out_dir, command: str, commit: str) -> list[Path]:
+    """Copy the run's tables into ``out_dir`` (replacing what was there) and write its README.md."""
+    files = recorded_files(config, Path(results, "tables"))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for old in out.glob("*"):
+        if old.is_file() and old.suffix in (".csv", ".md"):
+            old.unlink()
+    for f in files:
+        with atomic_path(out / f.name) as tmp:
+            shutil.copyfile(f, tmp)
+    when = datetime.now(timezone.utc).strftime("%Y-%m-%d")
+    note = (f"# The last full run\n\nCommit `{commit}`, profile {config.get('profile', '?')}, recorded {when}.\n"
+            f"Command, from a fresh clone:\n\n```bash\n{command}\n```\n\n"
+            "Every file here is the pipeline's own output, copied by `ocpipe record` (never edited): the study's "
+            "tables (`table5_*`), the findings this run reproduces (`findings`) and where its time went "
+            "(`compute`).\n")
+    with atomic_path(out / "README.md") as tmp:
+        tmp.write_text(note)
+    return [out / f.name for f in files]

@@ -1,0 +1,98 @@
+"""The compute table: benchmark files charged to the experiment, store or table that built them."""
+
+import os
+
+import polars as pl
+import pytest
+
+from ocpipe.study import compute
+
+HEADER = "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
+
+
+def _bench(root, rel, seconds, cpu, end):
+    f = root / rel
+    f.parent.mkdir(parents=True, exist_ok=True)
+    f.write_text(HEADER + f"{seconds}\t0:00:00\t1\t1\t1\t1\t0\t0\t100\t{cpu}\n")
+    os.utime(f, (end, end))
+
+
+@pytest.fixture
+def bench(tmp_path):
+    b = tmp_path / "benchmarks"
+    t0 = 1_000_000.0
+    _bench(b, "demos_shard/PickCube-v1_shard0.tsv", 60, 60, t0 + 60)
+    _bench(b, "frames_shard/PickCube-v1_dual_128_shard0.tsv", 120, 90, t0 + 180)
+    _bench(b, "frames_shard/PickCube-v1_dual_128_shard1.tsv", 120, 90, t0 + 180)
+    _bench(b, "train_slots_ssl.tsv", 600, 600, t0 + 780)
+    _bench(b, "features/PickCube-v1_dual_128_slots_ssl.tsv", 120, 180, t0 + 900)
+    for exp, train in (("pure_visual", 300), ("goal2d", 240)):
+        _bench(b, f"train/{exp}.tsv", train, train, t0 + 1200)
+        for e in ("0008", "0016"):
+            _bench(b, f"sweep/{exp}_epoch_{e}.tsv", 30, 30, t0 + 1300)
+        for r in range(3):
+            _bench(b, f"stability/{exp}_run_{r}.tsv", 120, 120, t0 + 1700)
+    _bench(b, "train/weight_time.tsv", 180, 180, t0 + 1900)
+    _bench(b, "tables/table5_1.tsv", 6, 6, t0 + 1800)
+    _bench(b, "tables/table5_9.tsv", 6, 6, t0 + 2000)
+    return b
+
+
+def test_jobs_are_charged_to_what_they_built(bench):
+    rows = compute.charged(compute.read_jobs(bench)).iter_rows(named=True)
+    by = {(r["kind"], r["what"], r["stage"]): r for r in rows}
+    assert by[("experiment", "goal2d", "stability")]["jobs"] == 3
+    assert by[("experiment", "goal2d", "stability")]["core_min"] == 6.0
+    assert by[("experiment", "pure_visual", "sweep")]["core_min"] == 1.0
+    assert by[("store", "PickCube-v1_dual_128", "frames")] == {
+        "kind": "store", "what": "PickCube-v1_dual_128", "stage": "frames", "jobs": 2, "job_min": 4.0, "core_min": 3.0}
+    assert by[("encoder", "slots_ssl", "encoder")]["core_min"] == 10.0
+    assert by[("store", "PickCube-v1", "demos")]["job_min"] == 1.0
+    assert by[("table", "table5_1", "report")]["core_min"] == 0.1
+
+
+def test_tables_add_what_they_build_first_and_sum_to_the_run(default_config, bench):
+    jobs = compute.read_jobs(bench)
+    totals = compute.charged(jobs).group_by("kind", "what").agg(pl.col("job_min", "core_min").sum())
+    adds = dict(compute.per_table(default_config, totals).select("table", "core_min").iter_rows())
+    # table 5.1 builds the stores, the encoder, pure_visual and goal2d (state_control and goal3d never ran here)
+    assert adds["table5_1"] == pytest.approx(1 + 3 + 10 + 3 + (5 + 1 + 6) + (4 + 1 + 6) + 0.1)
+    assert adds["table5_2"] == 0.0  # the same rows: nothing new to build
+    assert adds["table5_9"] == pytest.approx(3 + 0.1)  # weight_time's training and the table itself
+    assert sum(adds.values()) == pytest.approx(jobs["cpu_seconds"].sum() / 60)
+
+
+def test_wall_time_spans_first_start_to_last_end(bench):
+    assert compute.wall_minutes(compute.read_jobs(bench)) == pytest.approx(2000 / 60, abs=0.05)
+
+
+def test_write_names_the_run_and_an_empty_folder_is_an_error(default_config, bench, tmp_path):
+    compute.write(default_config, bench, tmp_path / "c.csv", tmp_path / "c.md")
+    text = (tmp_path / "c.md").read_text()
+    assert "| goal2d |" in text and "wall time 33.3 min" in text
+    assert pl.read_csv(tmp_path / "c.csv")["core_min"].sum() == pytest.approx(
+        compute.read_jobs(bench)["cpu_seconds"].sum() / 60, abs=0.2)
+    with pytest.raises(FileNotFoundError, match="no benchmark files"):
+        compute.read_jobs(tmp_path / "nothing")
+
+
+def test_record_copies_a_whole_runs_tables_and_refuses_part_of_one(default_config, tmp_path):
+    from ocpipe.study import record
+
+    tables = tmp_path / "results" / "tables"
+    tables.mkdir(parents=True)
+    names = [*default_config["tables"], "findings", "compute"]
+    for n in names:
+        (tables / f"{n}.csv").write_text(f"{n},1\n")
+        (tables / f"{n}.md").write_text(f"**{n}**\n")
+    out = tmp_path / "docs" / "results"
+    out.mkdir(parents=True)
+    (out / "table5_99.csv").write_text("stale")
+    files = record.write(default_config, tmp_path / "results", out, "time snakemake --cores 2 all", "abc123")
+    assert len(files) == 2 * len(names)
+    assert (out / "table5_3.csv").read_text() == "table5_3,1\n"
+    assert not (out / "table5_99.csv").exists()  # a table of an older run does not survive into this record
+    assert "Commit `abc123`" in (out / "README.md").read_text()
+    (tables / "table5_7.md").unlink()
+    with pytest.raises(FileNotFoundError, match="table5_7.md"):
+        record.write(default_config, tmp_path / "results", out, "cmd", "abc123")
