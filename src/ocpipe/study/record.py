@@ -26,15 +26,19 @@ def recorded_files(config: dict, tables_dir) -> list[Path]:
 def commit_of(repo) -> str:
     """HEAD's hash, marked where the working tree differs from it (the record then is not of that commit alone)."""
     git = ["git", "-C", str(repo)]
-    head = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+    head = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True)
+    if head.returncode:
+        raise FileNotFoundError(f"{repo} is not a git checkout: a record names the commit that made it")
     dirty = subprocess.run([*git, "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True,
                            check=True).stdout.strip()
-    return f"{head} (with uncommitted changes)" if dirty else head
+    return f"{head.stdout.strip()} (with uncommitted changes)" if dirty else head.stdout.strip()
 
 
-def write(config: dict, results, out_dir, command: str, commit: str) -> list[Path]:
-    """Copy the run's tables into ``out_dir`` (replacing what was there) and write its README.md."""
+def write(config: dict, results, out_dir, command: str, commit: str | None = None) -> list[Path]:
+    """Copy the run's tables into ``out_dir`` (replacing what was there) and write its README.md; ``commit``
+    defaults to that of the checkout holding ``results``."""
     files = recorded_files(config, Path(results, "tables"))
+    commit = commit or commit_of(Path(results).resolve().parent)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for old in out.glob("*"):
