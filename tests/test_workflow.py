@@ -8,6 +8,7 @@ import sys
 
 import h5py
 import numpy as np
+import polars as pl
 import pytest
 import yaml
 from conftest import REPO
@@ -275,6 +276,7 @@ def test_dry_run_of_all_audits_the_whole_study_on_both_configs(tmp_path):
                            "fusion_cross_attention", "window20", "window40", "proprio9_global", "proprio9_grouped",
                            "weight_time", "weight_u_shaped", "weight_dim_decoupled", "stack_native", "stack_aligned"}
         assert "results/tables/findings.csv" in out
+        assert "rule compute:" in out and "results/tables/compute.csv" in out  # the run's compute table, last
     assert "results/frames/StackCube-v1_dual_224" in thesis and "results/frames/StackCube-v1_dual_224" not in default
 
 
@@ -319,6 +321,21 @@ def test_table5_1_end_to_end_and_identical_on_a_rerun(tiny_run, tmp_path):
     snakemake(copy, "--configfile", "tiny.yaml", "--cores", "2", *TABLES)
     for name in ("table5_1.csv", "table5_2.csv", "table5_6.csv"):
         assert (copy / "results" / "tables" / name).read_text() == (tiny_run / "results" / "tables" / name).read_text()
+
+
+def test_compute_table_charges_every_job_of_the_tiny_run(tiny_run, tmp_path):
+    cli = [sys.executable, "-m", "ocpipe.cli", "compute", str(tiny_run / "results"), "--config",
+           str(REPO / "config" / "config.yaml"), str(tiny_run / "tiny.yaml")]
+    out = subprocess.run(cli, capture_output=True, text=True, check=True).stdout
+    table = pl.read_csv(tiny_run / "results" / "tables" / "compute.csv")
+    jobs = len(list((tiny_run / "results" / "benchmarks").rglob("*.tsv")))
+    assert table["jobs"].sum() == jobs  # every benchmark file charged once
+    exps = set(table.filter(pl.col("kind") == "experiment")["what"])
+    assert {"pure_visual", "goal2d", "goal3d", "state_control", "fusion_cross_attention"} <= exps
+    stages = set(table.filter(pl.col("what") == "goal2d")["stage"])
+    assert {"train", "sweep", "stability"} <= stages
+    assert "other" not in set(table["kind"])  # no job the table cannot place
+    assert "| table5_1 |" in out and "wall time" in out
 
 
 def test_summary_names_probes_and_open_loop_error(tiny_run):

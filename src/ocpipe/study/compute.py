@@ -115,14 +115,18 @@ def write(config: dict, bench_dir, csv_path, md_path) -> pl.DataFrame:
     totals = by_stage.group_by("kind", "what", maintain_order=True).agg(pl.col("job_min", "core_min").sum())
     tables = per_table(config, totals)
     write_csv(by_stage, csv_path)
-    wide = lambda kind: (by_stage.filter(pl.col("kind") == kind)  # noqa: E731
-                         .pivot(on="stage", index="what", values="core_min", aggregate_function="sum")
-                         .fill_null(0.0).with_columns(total=pl.sum_horizontal(pl.exclude("what")).round(1)))
+    def wide(kind: str) -> pl.DataFrame:
+        t = (by_stage.filter(pl.col("kind") == kind)
+             .pivot(on="stage", index="what", values="core_min", aggregate_function="sum").fill_null(0.0))
+        t = t.select("what", *[s for s in STAGES if s in t.columns])  # stages in pipeline order
+        return t.with_columns(total=pl.sum_horizontal(pl.exclude("what")).round(1))
+
     wall = wall_minutes(jobs)
-    parts = [markdown(wide("experiment"), "Experiments: core-minutes by stage"),
-             markdown(wide("store"), "Stores: core-minutes by stage"),
-             markdown(wide("encoder"), "Encoders trained by the workflow: core-minutes"),
-             markdown(tables, "Tables: what each adds, in config order (minutes)")]
+    minutes = lambda t: t.with_columns(pl.col(pl.Float64).round(1).cast(pl.Utf8))  # noqa: E731  (0.3, not 0.300)
+    parts = [markdown(minutes(wide("experiment")), "Experiments: core-minutes by stage"),
+             markdown(minutes(wide("store")), "Stores: core-minutes by stage"),
+             markdown(minutes(wide("encoder")), "Encoders trained by the workflow: core-minutes"),
+             markdown(minutes(tables), "Tables: what each adds, in config order (minutes)")]
     footer = (f"{len(jobs)} jobs, {jobs['cpu_seconds'].sum() / 60:.1f} core-minutes, "
               f"{jobs['seconds'].sum() / 60:.1f} job-minutes; wall time {wall} min (first job's start to last "
               f"job's end, from {bench_dir}'s files). Profile {config.get('profile', '?')}.")
