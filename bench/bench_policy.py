@@ -44,9 +44,9 @@ class RandomAccessWindows(torch.utils.data.Dataset):
         return {k: v[0] for k, v in b.items()}
 
 
-def _loader_worker(kind, policy, features, frames, max_batches, queue):
+def _loader_worker(kind, policy, features, frames, max_batches, queue, camera_approx):
     torch.set_num_threads(1)
-    d = data.load(policy, features, frames)
+    d = data.load(policy, features, frames, camera_approx)
     tokens, labels = d.tokens, d.labels
     if kind == "chunk-aware":
         it = ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], policy["batch_size"],
@@ -66,10 +66,10 @@ def _loader_worker(kind, policy, features, frames, max_batches, queue):
     )
 
 
-def measure_loader(kind, policy, features, frames, max_batches):
+def measure_loader(kind, policy, features, frames, max_batches, camera_approx):
     queue = mp.get_context("spawn").Queue()
     proc = mp.get_context("spawn").Process(
-        target=_loader_worker, args=(kind, policy, features, frames, max_batches, queue)
+        target=_loader_worker, args=(kind, policy, features, frames, max_batches, queue, camera_approx)
     )
     proc.start()
     out = queue.get()
@@ -77,12 +77,12 @@ def measure_loader(kind, policy, features, frames, max_batches):
     return out
 
 
-def seconds_per_epoch(policy, features, frames, max_batches, threads):
+def seconds_per_epoch(policy, features, frames, max_batches, threads, camera_approx):
     from ocpipe.policy.model import SequencePolicy, loss_terms
     from ocpipe.policy.weighting import loss_weights
 
     torch.set_num_threads(threads)
-    d = data.load(policy, features, frames)
+    d = data.load(policy, features, frames, camera_approx)
     tokens, labels, meta = d.tokens, d.labels, d.meta
     loader = ChunkWindowLoader(
         tokens, labels, policy["window"], policy["horizon"], policy["batch_size"], policy["cameras"], seed=0
@@ -108,17 +108,32 @@ def seconds_per_epoch(policy, features, frames, max_batches, threads):
     return per_batch * len(loader), n, len(loader), sum(p.numel() for p in model.parameters())
 
 
+def resolve_with_overrides(config, spec: str) -> dict:
+    """'goal2d' or 'goal2d:dropout=0.0,window=20' -> that experiment's policy with the overrides (YAML values)."""
+    import yaml
+
+    name, _, overrides = spec.partition(":")
+    p = experiments.resolve(config, name)
+    for item in filter(None, overrides.split(",")):
+        key, _, value = item.partition("=")
+        if key not in p:
+            sys.exit(f"{spec}: {key!r} is not a policy key")
+        p[key] = yaml.safe_load(value)
+    return p
+
+
 def time_experiments(config, names, features, frames, args):
-    print(f"{'experiment':<26}{'params':>10}{'T':>8}{'s/epoch':>10}{'x goal2d':>10}  ({args.threads} threads)")
+    print(f"{'experiment':<34}{'params':>10}{'T':>8}{'s/epoch':>10}{'x goal2d':>10}  ({args.threads} threads)")
     base = None
     for name in names:
-        p = experiments.resolve(config, name)
+        p = resolve_with_overrides(config, name)
         if experiments.features_store(p) != experiments.features_store(experiments.resolve(config, "goal2d")):
-            print(f"{name:<26}  skipped: needs {experiments.features_store(p)}")
+            print(f"{name:<34}  skipped: needs {experiments.features_store(p)}")
             continue
-        sec, n, total, params = seconds_per_epoch(p, features, frames, args.epoch_batches, args.threads)
+        sec, n, total, params = seconds_per_epoch(p, features, frames, args.epoch_batches, args.threads,
+                                                   config["camera_approx"])
         base = base or sec
-        print(f"{name:<26}{params:>10}{p['window']:>8}{sec:>10.1f}{sec / base:>10.2f}  ({n} of {total} batches)")
+        print(f"{name:<34}{params:>10}{p['window']:>8}{sec:>10.1f}{sec / base:>10.2f}  ({n} of {total} batches)")
     print()
 
 
@@ -133,8 +148,9 @@ def main():
         "--experiments",
         nargs="*",
         default=[],
-        help="also time an epoch of these config experiments (e.g. window20 window40), side by side "
-        "with goal2d; experiments on other tasks or encoders need their own features store",
+        help="also time an epoch of these config experiments (e.g. window20 window40, or goal2d:dropout=0.0 for "
+        "one with overrides), side by side with goal2d; experiments on other tasks or encoders need their own "
+        "features store",
     )
     ap.add_argument("--skip-loaders", action="store_true", help="only time epochs")
     args = ap.parse_args()
@@ -159,8 +175,9 @@ def main():
         time_experiments(config, ["goal2d", *args.experiments], features, frames, args)
     if args.skip_loaders:
         return
-    chunk = measure_loader("chunk-aware", policy, features, frames, 0)
-    rand = measure_loader("random-access", policy, features, frames, args.random_batches)
+    chunk = measure_loader("chunk-aware", policy, features, frames, 0, config["camera_approx"])
+    rand = measure_loader("random-access", policy, features, frames, args.random_batches,
+                          config["camera_approx"])
     rate = lambda r: r["samples"] / r["seconds"]  # noqa: E731
     print(f"{'loader':<16}{'samples':>10}{'seconds':>10}{'samples/s':>12}{'peak RSS MB':>14}")
     for name, r in (("chunk-aware", chunk), ("random-access", rand)):
@@ -172,7 +189,8 @@ def main():
     results = {}
     label = lambda p: f"w{p['width']}, {p['layers']} layers"  # noqa: E731
     for name, p in ((f"default ({label(policy)})", policy), (f"thesis ({label(thesis)})", thesis)):
-        sec, n, total, params = seconds_per_epoch(p, features, frames, args.epoch_batches, args.threads)
+        sec, n, total, params = seconds_per_epoch(p, features, frames, args.epoch_batches, args.threads,
+                                                   config["camera_approx"])
         results[name] = sec
         print(f"{name:<28}{params:>10}{sec:>10.1f}  ({n} of {total} batches timed)")
     a, b = results.values()
