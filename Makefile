@@ -4,7 +4,7 @@ SNAKEMAKE := .venv/bin/snakemake
 MAIN_TARGET ?= spatial_grounding
 CORES ?= 2
 
-.PHONY: setup main test test-fast lint dry-run clean
+.PHONY: setup main test test-fast test-cluster lint dry-run clean
 
 setup:
 	bash bin/setup.sh
@@ -13,12 +13,18 @@ main: setup
 	$(SNAKEMAKE) --cores $(CORES) --rerun-incomplete $(MAIN_TARGET)
 	.venv/bin/ocpipe summary results
 
+# everything but the SLURM tests (marked cluster: they install and start a cluster as root; make test-cluster)
 test: setup lint
-	.venv/bin/python -m pytest
+	.venv/bin/python -m pytest -m "not cluster"
 
 # everyday work: everything but the end-to-end Snakemake runs (tests marked slow)
 test-fast: setup
 	.venv/bin/python -m pytest -m "not slow"
+
+# the tiny study through the local SLURM cluster (docs/cluster.md): needs root; the first start installs SLURM
+# and MariaDB (apt), and the cluster keeps running afterwards (bash bin/slurm-local.sh stop)
+test-cluster: setup
+	bash bin/slurm-local.sh start && .venv/bin/python -m pytest -m cluster
 
 lint:
 	.venv/bin/ruff check .
