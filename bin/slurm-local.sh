@@ -234,6 +234,8 @@ ReturnToService=2
 # sacct (which the executor plugin polls) reads job records from slurmdbd.
 AccountingStorageType=accounting_storage/slurmdbd
 AccountingStorageHost=localhost
+# keep --comment (the plugin puts the rule and its wildcards there) in accounting, so sacct shows each job's rule
+AccountingStoreFlags=job_comment
 JobAcctGatherType=jobacct_gather/linux
 JobCompType=jobcomp/none
 # No mail on this machine; without this slurmctld logs an error per job that asks for mail.
