@@ -96,3 +96,8 @@ def test_record_copies_a_whole_runs_tables_and_refuses_part_of_one(default_confi
     (tables / "table5_7.md").unlink()
     with pytest.raises(FileNotFoundError, match="table5_7.md"):
         record.write(default_config, tmp_path / "results", out, "cmd", "abc123")
+
+
+def test_the_compute_jobs_own_benchmark_is_a_table_job():
+    assert compute.owner("", "compute") == ("table", "compute", "report")
+    assert compute.owner("", "something_new") == ("other", "something_new", "other")

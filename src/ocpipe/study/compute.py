@@ -55,7 +55,7 @@ def owner(folder: str, name: str) -> tuple[str, str, str]:
         return "store", base, STORE_STAGES[folder]
     if not folder and name in ENCODER_JOBS:
         return "encoder", ENCODER_JOBS[name], "encoder"
-    if folder in ("tables", "figures"):
+    if folder in ("tables", "figures") or (not folder and name == "compute"):  # compute: this table's own job
         return "table", base, "report"
     if folder.startswith("lever") or name == "levers":
         return "lever", base, "lever"
@@ -104,6 +104,19 @@ def per_table(config: dict, totals: pl.DataFrame) -> pl.DataFrame:
     return pl.DataFrame(rows)
 
 
+def by_kind(by_stage: pl.DataFrame, kind: str) -> pl.DataFrame:
+    """One row per experiment (store, encoder) of ``kind``: core-minutes per stage, in pipeline order, and total."""
+    t = (by_stage.filter(pl.col("kind") == kind)
+         .pivot(on="stage", index="what", values="core_min", aggregate_function="sum").fill_null(0.0))
+    t = t.select("what", *[s for s in STAGES if s in t.columns])
+    return t.with_columns(total=pl.sum_horizontal(pl.exclude("what")).round(1))
+
+
+def _minutes(table: pl.DataFrame) -> pl.DataFrame:
+    """Minutes to one decimal as text (the Markdown writer would print 0.300)."""
+    return table.with_columns(pl.col(pl.Float64).round(1).cast(pl.Utf8))
+
+
 def wall_minutes(jobs: pl.DataFrame) -> float:
     start = (jobs["end"] - jobs["seconds"]).min()
     return round((jobs["end"].max() - start) / 60, 1)
@@ -115,18 +128,11 @@ def write(config: dict, bench_dir, csv_path, md_path) -> pl.DataFrame:
     totals = by_stage.group_by("kind", "what", maintain_order=True).agg(pl.col("job_min", "core_min").sum())
     tables = per_table(config, totals)
     write_csv(by_stage, csv_path)
-    def wide(kind: str) -> pl.DataFrame:
-        t = (by_stage.filter(pl.col("kind") == kind)
-             .pivot(on="stage", index="what", values="core_min", aggregate_function="sum").fill_null(0.0))
-        t = t.select("what", *[s for s in STAGES if s in t.columns])  # stages in pipeline order
-        return t.with_columns(total=pl.sum_horizontal(pl.exclude("what")).round(1))
-
     wall = wall_minutes(jobs)
-    minutes = lambda t: t.with_columns(pl.col(pl.Float64).round(1).cast(pl.Utf8))  # noqa: E731  (0.3, not 0.300)
-    parts = [markdown(minutes(wide("experiment")), "Experiments: core-minutes by stage"),
-             markdown(minutes(wide("store")), "Stores: core-minutes by stage"),
-             markdown(minutes(wide("encoder")), "Encoders trained by the workflow: core-minutes"),
-             markdown(minutes(tables), "Tables: what each adds, in config order (minutes)")]
+    parts = [markdown(_minutes(by_kind(by_stage, "experiment")), "Experiments: core-minutes by stage"),
+             markdown(_minutes(by_kind(by_stage, "store")), "Stores: core-minutes by stage"),
+             markdown(_minutes(by_kind(by_stage, "encoder")), "Encoders trained by the workflow: core-minutes"),
+             markdown(_minutes(tables), "Tables: what each adds, in config order (minutes)")]
     footer = (f"{len(jobs)} jobs, {jobs['cpu_seconds'].sum() / 60:.1f} core-minutes, "
               f"{jobs['seconds'].sum() / 60:.1f} job-minutes; wall time {wall} min (first job's start to last "
               f"job's end, from {bench_dir}'s files). Profile {config.get('profile', '?')}.")
