@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 import polars as pl
-from scipy.stats import fisher_exact
 
 from ..util.atomic import atomic_path
+from . import stats
 from .report import markdown
 
 
@@ -25,13 +25,13 @@ def readout_error_cm(steps: pl.DataFrame) -> float | None:
 
 
 def lever_row(name: str, lever: dict, train_log: pl.DataFrame, episodes: pl.DataFrame, steps: pl.DataFrame) -> dict:
-    kept = episodes.filter(~pl.col("trivial"))
+    k, n = stats.successes(episodes)
     overrides = ", ".join(f"{k}={v}" for k, v in lever.get("policy", {}).items()) or "baseline"
     last = train_log.row(-1, named=True)
     return {"Lever": name, "Experiment": lever["experiment"], "Changes": overrides,
             "Train min": round(float(train_log["seconds"].sum()) / 60, 1),
             "Open-loop joint error (rad)": last.get("val_joint_err_rad"),
-            "Successes": int(kept["success"].sum()), "Episodes": len(kept),
+            "Successes": k, "Episodes": n,
             "Read-out error (cm)": readout_error_cm(steps)}
 
 
@@ -43,8 +43,8 @@ def with_tests(rows: list[dict]) -> pl.DataFrame:
         b = base.get(r["Experiment"])
         r["p vs baseline"] = None
         if b is not None and b is not r:
-            table = [[r["Successes"], r["Episodes"] - r["Successes"]], [b["Successes"], b["Episodes"] - b["Successes"]]]
-            r["p vs baseline"] = float(fisher_exact(table)[1])
+            r["p vs baseline"] = stats.fisher((r["Successes"], r["Episodes"]), (b["Successes"], b["Episodes"]),
+                                              "two-sided")
     return pl.DataFrame(rows)
 
 
