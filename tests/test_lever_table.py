@@ -44,11 +44,11 @@ def test_each_lever_is_tested_against_its_experiments_baseline(tmp_path):
 
 
 def test_a_lever_resolves_over_its_experiment_and_bad_levers_are_named(default_config):
-    lever = resolve_lever(default_config, "goal2d_readout_only")
-    assert lever == {**resolve(default_config, "goal2d"), "visual_head": "none", "object_readout": True,
-                     "name": "goal2d_readout_only"}
+    lever = resolve_lever(default_config, "goal2d_dropout")
+    assert lever == {**resolve(default_config, "goal2d"), "dropout": 0.1, "epochs": 16, "save_every": 8,
+                     "name": "goal2d_dropout"}
     sets = default_config["levers"]["sets"]
-    bad = {**default_config, "levers": {"episodes": 500, "sets": {
+    bad = {**default_config, "levers": {"episodes": 500, "build": ["goal2d", "goal2d_typo"], "sets": {
         **sets, "x": {"experiment": "nope"}, "y": {"experiment": "goal2d", "policy": {"visual_head": "none",
                                                                                        "object_readout": False}}}}}
     with pytest.raises(C.ConfigError) as err:
@@ -57,6 +57,8 @@ def test_a_lever_resolves_over_its_experiment_and_bad_levers_are_named(default_c
     assert "levers.episodes: 500 episodes per lever, but the validation pool holds 200 seeds" in msg
     assert "levers.sets.x.experiment: 'nope' is not defined under experiments" in msg
     assert "levers.sets.y.policy.visual_head" in msg
+    assert "levers.build: 'goal2d_typo' is not a lever under levers.sets" in msg
+    assert "'goal2d' is not" not in msg
     with pytest.raises(C.ConfigError, match="levers.sets.z.policy.widht"):
         C.validate({**default_config, "levers": {"episodes": 2, "sets": {"z": {"experiment": "goal2d",
                                                                                 "policy": {"widht": 3}}}}})

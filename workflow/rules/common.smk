@@ -173,5 +173,5 @@ LEVER_FILES = {
         f"{paths.LEVER_EVAL}.episodes.parquet".format(lever=name),
         f"{paths.LEVER_EVAL}.steps.parquet".format(lever=name),
     )
-    for name in config["levers"]["sets"]
+    for name in config["levers"].get("build") or config["levers"]["sets"]
 }

@@ -176,6 +176,10 @@ def lever_problems(config: dict) -> list[str]:
     if levers["sets"] and levers["episodes"] > pool:
         problems.append(f"  levers.episodes: {levers['episodes']} episodes per lever, but the validation pool holds "
                         f"{pool} seeds (evaluation.validation_pool_size)")
+    for name in levers.get("build") or []:
+        if name not in levers["sets"]:
+            problems.append(f"  levers.build: {name!r} is not a lever under levers.sets "
+                            f"(defined: {', '.join(sorted(levers['sets']))})")
     for name, lever in levers["sets"].items():
         if lever["experiment"] not in config["experiments"]:
             problems.append(f"  levers.sets.{name}.experiment: {lever['experiment']!r} is not defined under "
