@@ -176,3 +176,9 @@ def test_tables_put_each_rows_figures_in_its_row(default_config, tmp_path):
     assert by2["Pure Visual"]["Near Miss %"] == pytest.approx(100 * 40 / 120)
     assert by2["Explicit-3D-GT"]["Drop"] == 120 - 93 - 2 - 14
     assert (tmp_path / "t1.md").read_text().rstrip().splitlines()[-1].startswith("Profile cpu-default.")
+
+
+def test_markdown_keeps_small_p_values_readable():
+    table = pl.DataFrame({"Finding": [1, 2, 3], "p": [5.78e-05, 0.0, 0.1234], "Note": ["a", None, "c"]})
+    md = report.markdown(table, "t")
+    assert "| 1 | 5.8e-05 | a |" in md and "| 2 | 0.000 | — |" in md and "| 3 | 0.123 | c |" in md

@@ -32,10 +32,18 @@ def classify_episodes(episode_files, task: str, rules: dict, out_path) -> pl.Dat
     return classes
 
 
+def _cell(v) -> str:
+    """Floats to 3 decimals, but a small non-zero one (a p-value) in scientific notation rather than as 0.000."""
+    if v is None:
+        return "—"
+    if isinstance(v, float):
+        return f"{v:.1e}" if 0 < abs(v) < 5e-4 else f"{v:.3f}"
+    return str(v)
+
+
 def markdown(table: pl.DataFrame, title: str, footer: str = "") -> str:
-    fmt = lambda v: f"{v:.3f}" if isinstance(v, float) else "—" if v is None else str(v)  # noqa: E731
     lines = [f"**{title}**", "", "| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
-    lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in table.iter_rows()]
+    lines += ["| " + " | ".join(_cell(v) for v in row) + " |" for row in table.iter_rows()]
     return "\n".join(lines + ([f"\n{footer}"] if footer else [])) + "\n"
 
 
