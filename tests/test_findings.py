@@ -80,3 +80,16 @@ def test_findings_without_weights_or_rows_say_what_is_missing(default_config, tm
     row = report.write_findings(default_config, "findings", tmp_path / "g.csv", tmp_path / "g.md",
                                 str(tmp_path / "runs")).row(6, named=True)
     assert row["Verdict"] == "not run: table5_6 has no row 'Cross-attention'"
+
+
+def test_each_target_judges_the_findings_its_tables_cover(default_config, tmp_path):
+    got = findings_of(default_config, tmp_path, {
+        "stack_native": ([1, 2, 0], 196, classes(near_miss=10, no_grasp=90, success=3)),
+        "stack_aligned": ([9, 8, 10], 180, classes(near_miss=12, no_grasp=70, success=27)),
+    }, scope="findings_stackcube")
+    assert sorted(got) == [11, 12]
+    assert got[11]["Verdict"] == "reproduced"  # 27 against 3 of 120
+    assert got[12]["Verdict"] == "reproduced" and "70/" in got[12]["This build"]  # No Grasp 70 of 93 failures
+    rows = {exp: ([10, 10, 10], 100, classes(near_miss=10, no_grasp=10, success=30))
+            for exp in targets.experiments_of(default_config)}
+    assert sorted(findings_of(default_config, tmp_path / "all", rows, scope="findings_ablations")) == list(range(4, 11))

@@ -163,8 +163,8 @@ rule table:
 
 
 rule findings:
-    """The study's findings judged on this build's episodes: `findings` all twelve, `findings_main` those of the main
-    job's tables (1-3)."""
+    """The study's findings judged on this build's episodes: `findings` all twelve; `findings_main`,
+    `findings_ablations` and `findings_stackcube` those of their target's tables (1-3, 4-10, 11-12)."""
     input:
         lambda w: targets.findings_inputs(config, w.scope),
     output:

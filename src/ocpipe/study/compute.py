@@ -15,6 +15,7 @@ import polars as pl
 
 from ..config.experiments import features_store, frames_store, resolve
 from ..util.atomic import atomic_path
+from .findings import BY_ID, SCOPES
 from .registry import FIGURES
 from .report import markdown
 from .tables import write_csv
@@ -91,8 +92,11 @@ def per_table(config: dict, totals: pl.DataFrame) -> pl.DataFrame:
     rows = []
     for table in config["tables"]:
         wanted = {("table", table)} | {b for e in experiments_of(config, [table]) for b in builds_of(config, e)}
-        if table == "table5_1":  # figures 5.1-5.3 and the main findings come with the main job's table
-            wanted |= {("table", "fig5_1_to_5_3"), ("table", "findings_main")}
+        if table == "table5_1":  # figures 5.1-5.3 come with the main job's table
+            wanted |= {("table", "fig5_1_to_5_3")}
+        # a target's findings (findings_main, _ablations, _stackcube) come with the first table they judge
+        wanted |= {("table", scope) for scope, ids in SCOPES.items()
+                   if scope != "findings" and BY_ID[ids[0]].table == table}
         wanted |= {("table", f) for f, fig in FIGURES.items() if fig.table == table}
         new = wanted - seen
         seen |= new

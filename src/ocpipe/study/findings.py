@@ -158,8 +158,10 @@ FINDINGS = (
             ("Aligned (base + side, 2D goal)",), ("failures",), _f12),
 )
 BY_ID = {f.id: f for f in FINDINGS}
-# the findings a target reports: the main job's tables cover findings 1-3
-SCOPES = {"findings": tuple(BY_ID), "findings_main": (1, 2, 3)}
+# the findings a target reports, those its tables cover: the main job's (Tables 5.1-5.2) 1-3, the ablations'
+# (5.3-5.9) 4-10, StackCube's (5.10-5.11) 11-12; `all` reports the twelve
+SCOPES = {"findings": tuple(BY_ID), "findings_main": (1, 2, 3), "findings_ablations": tuple(range(4, 11)),
+          "findings_stackcube": (11, 12)}
 
 
 def not_run(finding: Finding, rows: dict[str, Row]) -> str | None:

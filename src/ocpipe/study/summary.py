@@ -97,8 +97,10 @@ def _policies(results: Path) -> list[str]:
 
 
 def _tables_in_order(results: Path) -> list[Path]:
-    """Table 5.1, then the findings (all twelve where built, else the main job's), then Tables 5.2-5.11."""
+    """Table 5.1, then the findings (all twelve where built, else those of the targets built: main, ablations,
+    StackCube), then Tables 5.2-5.11."""
     tables = sorted(results.glob("tables/table5_*.md"), key=lambda p: int(p.stem.removeprefix("table5_")))
-    findings = next((p for p in (results / "tables" / f"{n}.md" for n in ("findings", "findings_main"))
-                     if p.is_file()), None)
-    return tables[:1] + ([findings] if findings else []) + tables[1:]
+    every = results / "tables" / "findings.md"
+    partial = [results / "tables" / f"{n}.md" for n in ("findings_main", "findings_ablations", "findings_stackcube")]
+    findings = [every] if every.is_file() else [p for p in partial if p.is_file()]
+    return tables[:1] + findings + tables[1:]
