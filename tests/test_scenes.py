@@ -75,6 +75,31 @@ def test_near_scenes_put_the_object_beside_a_demo_hand_at_a_random_yaw(tmp_path,
     assert root.attrs["near_fraction"] == 1.0
 
 
+def test_shards_merge_into_the_store_one_job_writes(tmp_path, default_config):
+    frames = tmp_path / "f.zarr"
+    write_shard(frames, [4, 3], 0)
+    kw = {"near_fraction": 0.5, "near_radius": 0.05, "progress": False}
+    args = (MeanColour(), default_config, "PickCube-v1", "dual", 32, frames)
+    scenes.render_scenes(*args, tmp_path / "one.zarr", 5, 50_000, 0, **kw)
+    parts = [tmp_path / f"s{s}.zarr" for s in range(3)]
+    for s, part in enumerate(parts):
+        scenes.render_scenes(*args, part, 5, 50_000, 0, shard=s, shards=3, **kw)
+    assert [zarr.open_group(str(p), mode="r")["tokens"].shape[0] for p in parts] == [1, 2, 2]
+    assert scenes.merge_scenes(parts[::-1], tmp_path / "merged.zarr") == {"scenes": 5, "shards": 3}
+    one, merged = (zarr.open_group(str(tmp_path / n), mode="r") for n in ("one.zarr", "merged.zarr"))
+    for k in ("tokens", *scenes.LABELS):
+        np.testing.assert_array_equal(merged[k][...], one[k][...])
+    assert dict(merged.attrs) == dict(one.attrs)
+    # a shard of another store (other scene seeds) is refused, and nothing is written
+    scenes.render_scenes(*args, tmp_path / "other.zarr", 5, 60_000, 0, shard=2, shards=3, **kw)
+    with pytest.raises(ValueError, match=r"other.zarr: not shard 2 of the 3 shards of one scenes store"):
+        scenes.merge_scenes([parts[0], parts[1], tmp_path / "other.zarr"], tmp_path / "bad.zarr")
+    with pytest.raises(ValueError, match=r"bad.zarr: a scenes store of 3 shards, but shards \[0, 2\] were given "
+                       r"\(missing: \[1\]\)"):
+        scenes.merge_scenes([parts[0], parts[2]], tmp_path / "bad.zarr")
+    assert not (tmp_path / "bad.zarr").exists()
+
+
 def test_scene_seeds_must_clear_the_demo_seeds_and_the_evaluation_pool(tmp_path, default_config):
     with pytest.raises(ValueError, match=r"scenes.seed_start: scene seeds 10000\.\.10002 overlap the evaluation pool"):
         scenes.render_scenes(MeanColour(), default_config, "PickCube-v1", "dual", 32, tmp_path / "f.zarr",

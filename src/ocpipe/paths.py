@@ -29,6 +29,7 @@ FEATURES_DIAGNOSTICS = RESULTS + "/features/{task}_{cams}_{res}_{encoder}.diagno
 ATTENTION_FIGURE = RESULTS + "/figures/attention_{task}_{cams}_{res}_{encoder}.png"
 # extra labelled scenes encoded by a features store's encoder, for the object read-out (policy.readout_scenes)
 SCENES_STORE = RESULTS + "/features/{task}_{cams}_{res}_{encoder}.scenes.zarr"
+SCENES_SHARD = RESULTS + "/features/shards/{task}_{cams}_{res}_{encoder}.scenes_shard{shard}.zarr"  # merged into it
 
 # one folder per experiment: training, then evaluation
 RUN = RESULTS + "/runs/{exp}"

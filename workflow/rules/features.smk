@@ -24,16 +24,16 @@ rule features:
         "../scripts/features.py"
 
 
-rule scenes:
+rule scenes_shard:
     input:
         frames=paths.FRAMES_STORE,
         ckpt=lambda w: encoder_checkpoint(w.encoder),
     output:
-        store=directory(paths.SCENES_STORE),
+        store=temp(directory(paths.SCENES_SHARD)),
     log:
-        "results/logs/scenes/{task}_{cams}_{res}_{encoder}.log",
+        "results/logs/scenes_shard/{task}_{cams}_{res}_{encoder}_shard{shard}.log",
     benchmark:
-        "results/benchmarks/scenes/{task}_{cams}_{res}_{encoder}.tsv"
+        "results/benchmarks/scenes_shard/{task}_{cams}_{res}_{encoder}_shard{shard}.tsv"
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("frames")
@@ -43,6 +43,24 @@ rule scenes:
         config=scene_params(),
         dtype=config["features"]["dtype"],
         seed=config["seed"],
+    script:
+        "../scripts/scenes_shard.py"
+
+
+rule scenes:
+    input:
+        shards=expand(paths.SCENES_SHARD, shard=range(config["scenes"]["shards"]), allow_missing=True),
+    output:
+        store=directory(paths.SCENES_STORE),
+    log:
+        "results/logs/scenes/{task}_{cams}_{res}_{encoder}.log",
+    benchmark:
+        "results/benchmarks/scenes/{task}_{cams}_{res}_{encoder}.tsv"
+    conda:
+        "../envs/ocpipe.yaml"
+    threads: threads_of("light")
+    resources:
+        **resources_of("light"),
     script:
         "../scripts/scenes.py"
 

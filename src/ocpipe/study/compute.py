@@ -27,7 +27,7 @@ EXPERIMENT_STAGES = {"train": "train", "sweep": "sweep", "stability": "stability
 STORE_STAGES = {"demos_shard": "demos", "demos_merge": "demos", "demos_import": "demos",
                 "frames_shard": "frames", "frames_merge": "frames", "frames_report": "frames",
                 "features": "features", "features_diagnostics": "features", "attention_maps": "features",
-                "scenes": "scenes"}
+                "scenes_shard": "scenes", "scenes": "scenes"}
 ENCODER_JOBS = {"train_slots_ssl": "slots_ssl", "train_spot_slots_on_dino": "spot"}
 SUFFIX = re.compile(r"(_shard\d+|_epoch_\d+|_run_\d+)$")
 STAGES = ("train", "sweep", "stability", "other", "demos", "frames", "features", "scenes", "encoder", "report")
