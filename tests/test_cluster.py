@@ -38,7 +38,8 @@ LOCAL_BENCHMARKS = {"best", "failures", "tables", "figures", "levers"}
 # workflow/rules/*.smk; `use rule ... with:` keeps the parent's).
 STAGE = {
     "demos_shard": "demos", "demos_merge": "light", "frames_shard": "frames", "frames_merge": "light",
-    "frames_report": "light", "train_slots_ssl": "train_slots_ssl", "features": "features", "scenes": "frames",
+    "frames_report": "light", "train_slots_ssl": "train_slots_ssl", "features": "features",
+    "scenes_shard": "frames", "scenes": "light",
     "features_diagnostics": "light", "attention_maps": "light", "train": "train", "lever_train": "train",
     "sweep": "evaluate", "stability": "evaluate", "failure_run": "evaluate", "train_seed_run": "evaluate",
     "lever_eval": "evaluate",

@@ -47,8 +47,8 @@ def tiny_run(tmp_path_factory):
 def test_dry_run_lists_the_dag_on_the_default_config(tmp_path):
     out = snakemake(tmp_path, "-n", "--cores", "2").stdout
     for rule in ("demos_shard", "demos_merge", "frames_shard", "frames_merge", "frames_report", "train_slots_ssl",
-                 "features", "features_diagnostics", "attention_maps", "scenes", "train", "sweep", "best", "stability",
-                 "failures", "table", "figures5_1_to_5_3"):
+                 "features", "features_diagnostics", "attention_maps", "scenes_shard", "scenes", "train", "sweep",
+                 "best", "stability", "failures", "table", "figures5_1_to_5_3"):
         assert f"rule {rule}:" in out
     assert "results/frames/PickCube-v1_dual_128.zarr" in out
 
