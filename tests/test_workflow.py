@@ -474,12 +474,14 @@ def test_the_policy_sees_the_true_object_pose_under_the_diagnostic_filter(tiny_r
 
 
 def test_tiny_run_tables_match_the_committed_ones(tiny_run):
-    """The tiny run's tables, byte for byte, against tests/expected/tiny/ (made by this config before the code was
-    moved into stage packages): a refactor that changes what any stage computes changes a table. When a change is
-    meant to alter results, copy the new tables from the tiny run's results/tables/ over the committed ones."""
+    """The tiny run's tables, byte for byte, against tests/expected/tiny/: a refactor that changes what any stage
+    computes changes a table. When a change is meant to alter results, copy the new tables from the tiny run's
+    results/tables/ over the committed ones. The goldens are those of the machine kind CI runs on: another CPU can
+    give other floats, and a 2-epoch policy's gripper output sits near its threshold, so Pure Visual's four tiny
+    episodes were Idle on one machine and No Grasp on another (docs/journal.md, 2026-12-02)."""
     expected = REPO / "tests" / "expected" / "tiny"
     names = sorted(p.name for p in expected.glob("*.csv"))
     assert names == ["table5_1.csv", "table5_2.csv", "table5_6.csv"]
-    for name in names:
-        got = (tiny_run / "results" / "tables" / name).read_text()
-        assert got == (expected / name).read_text(), f"{name} differs from tests/expected/tiny/{name}:\n{got}"
+    got = {name: (tiny_run / "results" / "tables" / name).read_text() for name in names}
+    differ = {name: text for name, text in got.items() if text != (expected / name).read_text()}
+    assert not differ, "differ from tests/expected/tiny/:\n" + "\n".join(f"{n}:\n{t}" for n, t in differ.items())
