@@ -30,6 +30,7 @@ from ..util.atomic import atomic_path
 from .encode import sha256
 
 LABELS = ("obj_pos", "obj_quat", "tcp_pos")
+SHARD_ATTRS = ("shard", "shards", "first")  # a shard store's place in its store (absent from a whole store)
 
 
 def scene_plan(count: int, seed: int, n_poses: int, near_fraction: float) -> list[tuple[int, tuple | None]]:
@@ -97,9 +98,6 @@ def render_scenes(encoder, config: dict, task: str, camera_set: str, resolution:
         attrs.update(dict(zip(SHARD_ATTRS, (shard, shards, mine.start), strict=True)))
     _write(out_path, np.stack(tokens).astype(dtype), {k: np.stack(v) for k, v in labels.items()}, attrs)
     return {"scenes": len(mine)}
-
-
-SHARD_ATTRS = ("shard", "shards", "first")
 
 
 def merge_scenes(shard_paths: list[str | Path], out_path: str | Path) -> dict:
