@@ -182,3 +182,15 @@ def test_markdown_keeps_small_p_values_readable():
     table = pl.DataFrame({"Finding": [1, 2, 3], "p": [5.78e-05, 0.0, 0.1234], "Note": ["a", None, "c"]})
     md = report.markdown(table, "t")
     assert "| 1 | 5.8e-05 | a |" in md and "| 2 | 0.000 | — |" in md and "| 3 | 0.123 | c |" in md
+
+
+def test_summary_prints_table5_1_then_the_findings_built_then_the_other_tables(tmp_path):
+    from ocpipe.study.summary import _tables_in_order
+
+    (tmp_path / "tables").mkdir()
+    for name in ("table5_1", "table5_2", "table5_10", "findings_stackcube", "findings_main"):
+        (tmp_path / "tables" / f"{name}.md").write_text(name)
+    order = lambda: [p.stem for p in _tables_in_order(tmp_path)]  # noqa: E731
+    assert order() == ["table5_1", "findings_main", "findings_stackcube", "table5_2", "table5_10"]
+    (tmp_path / "tables" / "findings.md").write_text("all twelve")
+    assert order() == ["table5_1", "findings", "table5_2", "table5_10"]  # all twelve replace the targets' own

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 from ..features import probes
+from .findings import SCOPES
 
 
 def _fmt(x, spec=".3f"):
@@ -101,6 +102,6 @@ def _tables_in_order(results: Path) -> list[Path]:
     StackCube), then Tables 5.2-5.11."""
     tables = sorted(results.glob("tables/table5_*.md"), key=lambda p: int(p.stem.removeprefix("table5_")))
     every = results / "tables" / "findings.md"
-    partial = [results / "tables" / f"{n}.md" for n in ("findings_main", "findings_ablations", "findings_stackcube")]
+    partial = [results / "tables" / f"{n}.md" for n in SCOPES if n != "findings"]  # main, ablations, StackCube
     findings = [every] if every.is_file() else [p for p in partial if p.is_file()]
     return tables[:1] + findings + tables[1:]
