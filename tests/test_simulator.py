@@ -51,3 +51,19 @@ def test_unknown_camera_set_and_task_are_named(pick_env):
         envs.camera_specs(cfg, "wrist")
     with pytest.raises(ValueError, match="unknown task 'PushCube-v1'"):
         envs.make_env("PushCube-v1", cfg, "dual", 64)
+
+
+def test_a_camera_rendered_alone_gives_the_pixels_it_gives_beside_the_others(pick_env):
+    """A policy that reads one camera of its set renders only that one: same state, same image."""
+    cfg, env, _ = pick_env
+    alone = envs.make_env("PickCube-v1", cfg, "dual", 96, cameras=["side"])
+    try:
+        obs, _ = alone.reset(seed=10_001)
+        both = env.unwrapped.get_obs()
+        assert set(obs["sensor_data"]) == {"side_camera"}
+        np.testing.assert_array_equal(obs["sensor_data"]["side_camera"]["rgb"].numpy(),
+                                      both["sensor_data"]["side_camera"]["rgb"].numpy())
+    finally:
+        alone.close()
+    with pytest.raises(ValueError, match="not all in camera set 'dual'"):
+        envs.make_env("PickCube-v1", cfg, "dual", 64, cameras=["hand"])

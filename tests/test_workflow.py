@@ -280,6 +280,19 @@ def test_dry_run_of_all_audits_the_whole_study_on_both_configs(tmp_path):
     assert "results/frames/StackCube-v1_dual_224" in thesis and "results/frames/StackCube-v1_dual_224" not in default
 
 
+def test_a_baseline_lever_reads_its_experiments_run_instead_of_training_a_copy(tmp_path):
+    sets = yaml.safe_load((REPO / "config" / "config.yaml").read_text())["levers"]["sets"]
+    out = snakemake(tmp_path, "-n", "levers").stdout
+    blocks = re.split(r"\n(?=\S*rule )", out)
+    trained = {m for b in blocks if b.lstrip().startswith(("rule lever_train:", "localrule lever_train:"))
+               for m in re.findall(r"wildcards: lever=([\w-]+)", b)}
+    assert trained == {name for name, spec in sets.items() if spec.get("policy")}
+    for name, spec in sets.items():
+        if not spec.get("policy"):
+            assert f"results/runs/{spec['experiment']}/checkpoints" in out
+            assert f"results/levers/{name}/checkpoints" not in out
+
+
 def test_given_dino_weights_bring_the_dino_rows_into_the_graph(tmp_path):
     (tmp_path / "dino.pth").write_bytes(b"placeholder: a dry run only checks that the file exists")
     (tmp_path / "weights.yaml").write_text(yaml.safe_dump({"encoders": {"dino": {"checkpoint": "dino.pth"}}}))
@@ -371,6 +384,26 @@ def test_an_episode_is_the_same_in_a_fresh_env_and_after_other_episodes(tiny_run
             loop.close()
     assert both.row(1) == alone.row(0)
     assert both_steps.filter(pl.col("seed") == seeds[1]).equals(alone_steps)
+
+
+def test_an_encoder_built_for_one_camera_gives_that_cameras_tokens(tiny_run):
+    """The closed loop of a policy that reads one camera encodes only that one: its tokens, as stored, are the
+    ones the encoder of the whole set gives that camera."""
+    import torch
+
+    from ocpipe.config import validate as cfgmod
+    from ocpipe.encoders import registry
+    from ocpipe.policy import observation
+
+    res = tiny_run / "results"
+    config = cfgmod.load(REPO / "config" / "config.yaml", tiny_run / "tiny.yaml")
+    store, weights = res / "frames" / "PickCube-v1_dual_64.zarr", res / "encoders" / "slots_ssl" / "model.pt"
+    rgb = torch.from_numpy(frames_store.open_store(store)["rgb"][:6])
+    full, _ = registry.build("slots_ssl", config["encoders"], store, weights).encode(rgb)
+    side, _ = registry.build("slots_ssl", config["encoders"], store, weights, cameras=[1]).encode(rgb[:, [1]])
+    assert side.shape[1] == 1
+    torch.testing.assert_close(observation.as_stored(side[:, 0], "float16"),
+                               observation.as_stored(full[:, 1], "float16"), rtol=0, atol=0)
 
 
 def test_training_and_the_closed_loop_build_the_same_inputs_from_one_replayed_episode(tiny_run):

@@ -158,10 +158,19 @@ def lever_train_inputs(w):
     return train_inputs_of(lever_of(w))
 
 
+def lever_trained_in(lever):
+    """The folder holding a lever's checkpoints and train log. A lever without overrides is its experiment's
+    baseline: the same settings and seed train the same policy, so it reads the experiment's own run."""
+    spec = config["levers"]["sets"][lever]
+    if not spec.get("policy"):
+        return paths.RUN.format(exp=spec["experiment"])
+    return paths.LEVER.format(lever=lever)
+
+
 def lever_eval_inputs(w):
     p = lever_of(w)
     return {
-        "checkpoints": f"{paths.LEVER}/checkpoints".format(lever=w.lever),
+        "checkpoints": f"{lever_trained_in(w.lever)}/checkpoints",
         "frames": paths.frames_store(_exp.frames_store(p)),
         "encoder": encoder_checkpoint(p["encoder"]),
     }
@@ -169,7 +178,7 @@ def lever_eval_inputs(w):
 
 LEVER_FILES = {
     name: (
-        f"{paths.LEVER}/train_log.parquet".format(lever=name),
+        f"{lever_trained_in(name)}/train_log.parquet",
         f"{paths.LEVER_EVAL}.episodes.parquet".format(lever=name),
         f"{paths.LEVER_EVAL}.steps.parquet".format(lever=name),
     )

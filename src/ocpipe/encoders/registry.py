@@ -11,8 +11,10 @@ DINO_READOUTS = ("cls", "grid4", "dense")
 ENCODERS = SLOT_ENCODERS + tuple(f"dino_{r}" for r in DINO_READOUTS) + ("state",)
 
 
-def build(name: str, encoders_cfg: dict, frames_path: str | Path, trained_checkpoint: str | Path | None = None):
-    """A frozen encoder for the frames store at ``frames_path``.
+def build(name: str, encoders_cfg: dict, frames_path: str | Path, trained_checkpoint: str | Path | None = None,
+          cameras: list[int] | None = None):
+    """A frozen encoder for the frames store at ``frames_path``; ``cameras`` (indices into the store's cameras):
+    it encodes images of only these, in this order (default: all of the store's).
 
     ``trained_checkpoint``: a checkpoint the workflow produced (slots_ssl, or SPOT's slot module trained on DINO);
     user-given weights come from ``encoders_cfg`` and a missing file names its config key."""
@@ -28,8 +30,9 @@ def build(name: str, encoders_cfg: dict, frames_path: str | Path, trained_checkp
 
         if trained_checkpoint is None:
             raise ValueError("slots_ssl needs its trained checkpoint (results/encoders/slots_ssl/model.pt)")
-        return FrozenSSLSlots(trained_checkpoint, store["cam_intrinsic"][...], store["cam_extrinsic"][...],
-                              store.attrs["resolution"])
+        pick = slice(None) if cameras is None else list(cameras)
+        return FrozenSSLSlots(trained_checkpoint, store["cam_intrinsic"][...][pick],
+                              store["cam_extrinsic"][...][pick], store.attrs["resolution"])
     from .frozen_vit import FrozenDINO, FrozenSPOT
 
     if name == "spot":

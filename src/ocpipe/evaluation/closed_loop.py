@@ -82,17 +82,23 @@ class ClosedLoop:
         self.model, self.policy, self.meta = load_policy(checkpoint, self.device)
         p = self.policy
         check_checkpoint(checkpoint, p, self.meta, frames_store, encoder_checkpoint, expected)
-        self.encoder = to_device(registry.build(p.stores.encoder, config["encoders"], frames_store, encoder_checkpoint),
-                                 self.device)
+        read = list(p.stores.cameras)
+        self.encoder = to_device(registry.build(p.stores.encoder, config["encoders"], frames_store, encoder_checkpoint,
+                                                cameras=read), self.device)
         self.reads_labels = getattr(self.encoder, "reads_labels", False)
         if self.reads_labels:
             check_state_tokens(checkpoint, self.meta, self.encoder)
         self.task = p.stores.task
+        # the 2d goal is projected into every camera of the set (as in training), the tokens come from those read
         self.camera_names = list(envs.CAMERA_SETS[p.stores.cams])
         self.uids = [envs.SIM_CAMERA_UID[c] for c in self.camera_names]
-        # an encoder that reads the simulator's state needs no image: render nothing
-        self.env = envs.make_env(self.task, config, None if self.reads_labels else p.stores.cams, p.stores.resolution,
-                                obs_mode="rgb")
+        self.read_uids = [self.uids[i] for i in read]
+        # render only what the step needs: the cameras the policy reads, all of the set where the exact 2d goal
+        # takes their live matrices, none for an encoder that reads the simulator's state
+        live = p.goal.kind == "2d" and p.goal.calibration == "exact"
+        rendered = [] if self.reads_labels else self.camera_names if live else [self.camera_names[i] for i in read]
+        self.env = envs.make_env(self.task, config, p.stores.cams if rendered else None, p.stores.resolution,
+                                 obs_mode="rgb", cameras=rendered)
         self.approx = envs.approx_camera_matrices(config, self.camera_names, p.stores.resolution)
         ev = config["evaluation"]
         self.cap = ev["episode_cap"][self.task]
@@ -113,10 +119,9 @@ class ClosedLoop:
         """This step's visual tokens (C, K, D), exactly as the policy saw them in training."""
         if self.reads_labels:
             return torch.from_numpy(self.encoder.tokens_from_labels(labels))[self.policy.stores.cameras]
-        rgb = torch.stack([obs["sensor_data"][u]["rgb"][0] for u in self.uids])[None].cpu()
-        tokens, _ = self.encoder.encode(rgb.to(self.device))
-        tokens = observation.as_stored(tokens.cpu(), self.meta.get("tokens_dtype", "float32"))
-        return tokens[0][self.policy.stores.cameras]
+        rgb = torch.stack([obs["sensor_data"][u]["rgb"][0] for u in self.read_uids])[None].cpu()
+        tokens, _ = self.encoder.encode(rgb.to(self.device))  # built for the cameras read, in the policy's order
+        return observation.as_stored(tokens.cpu(), self.meta.get("tokens_dtype", "float32"))[0]
 
     @torch.inference_mode()
     def _observe(self, obs, first: bool) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:

@@ -106,8 +106,10 @@ def _lowpoly_env_class(task: str):
     return type(f"LowPoly{base.__name__}", (lowpoly.LowPolyAgentMixin, base), {"__module__": __name__})
 
 
-def make_env(task: str, config: dict, camera_set: str | None = None, resolution: int = 128, obs_mode: str = "rgb"):
-    """A single physx_cpu environment of ``task`` with the cameras of ``camera_set`` rendered at ``resolution``.
+def make_env(task: str, config: dict, camera_set: str | None = None, resolution: int = 128, obs_mode: str = "rgb",
+             cameras: list[str] | None = None):
+    """A single physx_cpu environment of ``task`` with the cameras of ``camera_set`` rendered at ``resolution``
+    (``cameras``: only these of the set, e.g. the ones a policy reads; a camera is a third of a step's CPU time).
 
     ``camera_set=None`` renders no cameras (demo generation). No TimeLimit wrapper: callers enforce
     ``sim.episode_cap`` themselves, so the registered 50-step limit can never truncate an expert."""
@@ -119,7 +121,10 @@ def make_env(task: str, config: dict, camera_set: str | None = None, resolution:
         # GPU drivers ignore it.
         os.environ.setdefault("LP_NUM_THREADS", str(sim["lavapipe_threads"]))
     cams = camera_specs(config, camera_set) if camera_set else []
-    keep = [SIM_CAMERA_UID[n] for n in CAMERA_SETS[camera_set]] if camera_set else []
+    keep = [SIM_CAMERA_UID[n] for n in CAMERA_SETS[camera_set] if cameras is None or n in cameras] if camera_set else []
+    if camera_set and cameras is not None and len(keep) != len(set(cameras)):
+        raise ValueError(f"cameras {list(cameras)} are not all in camera set {camera_set!r} "
+                         f"({', '.join(CAMERA_SETS[camera_set])})")
     sensor_overrides = {"shader_pack": sim["shader"]}
     if camera_set and "hand" in CAMERA_SETS[camera_set]:
         sensor_overrides["hand_camera"] = {"width": resolution, "height": resolution}
