@@ -1,5 +1,5 @@
 """Command-line helpers around the workflow: `ocpipe check-config`, `ocpipe check-store`, `ocpipe summary`,
-`ocpipe config-docs`, `ocpipe compute`, `ocpipe record`."""
+`ocpipe config-docs`, `ocpipe compute`, `ocpipe record`, `ocpipe progress`."""
 
 from __future__ import annotations
 
@@ -29,6 +29,10 @@ def parser() -> argparse.ArgumentParser:
     p = sub.add_parser("compute", help="where a results folder's time went: write and print its compute table")
     p.add_argument("results", nargs="?", default="results")
     p.add_argument("--config", nargs="*", default=["config/config.yaml"], help=CONFIG_HELP)
+    p = sub.add_parser("progress", help="where a workflow run stands (from a second terminal): jobs done, the running "
+                       "jobs' progress bars, an estimate of the time left")
+    p.add_argument("workdir", nargs="?", default=".", help="the folder the run was started in")
+    p.add_argument("--cores", type=int, default=2, help="the cores the run was given (snakemake --cores)")
     p = sub.add_parser("record", help="copy a whole run's tables, findings and compute table into docs/results/")
     p.add_argument("results", nargs="?", default="results")
     p.add_argument("--out", default="docs/results")
@@ -85,8 +89,15 @@ def record(args) -> int:
     return 0
 
 
+def progress(args) -> int:
+    from .study import progress
+
+    print("\n".join(progress.lines(args.workdir, args.cores)))
+    return 0
+
+
 COMMANDS = {"check-config": check_config, "check-store": check_store, "summary": summary,
-            "config-docs": config_docs, "compute": compute, "record": record}
+            "config-docs": config_docs, "compute": compute, "record": record, "progress": progress}
 
 
 def main(argv: list[str] | None = None) -> int:
