@@ -267,3 +267,22 @@ def test_temporal_ensemble_weights_older_chunks_more_and_votes_the_gripper():
     assert a[7] == 1.0
     # step 5: the old chunk (4 steps from 0) no longer covers it
     np.testing.assert_array_equal(ensemble_action(chunks, 5, 0.5), new[3])
+
+
+@pytest.mark.parametrize("exp, reads_labels, expected", [
+    ("head_flatten", False, ["base"]),                 # reads the base camera's slots only
+    ("pure_visual", False, ["base", "side"]),
+    ("goal2d_exact", False, ["base", "side"]),         # reads both anyway
+    ("state_control", True, []),                       # its tokens are the simulator's state
+    ("stack_native", False, ["base", "hand"]),
+])
+def test_the_closed_loop_renders_only_the_cameras_a_step_needs(default_config, exp, reads_labels, expected):
+    from ocpipe.config import experiments
+    from ocpipe.policy.settings import PolicySettings
+
+    policy = PolicySettings.of(experiments.resolve(default_config, exp))
+    assert closed_loop.cameras_to_render(policy, reads_labels) == expected
+    one_camera_exact = PolicySettings.of({**experiments.resolve(default_config, "goal2d_exact"), "cameras": [1]})
+    assert closed_loop.cameras_to_render(one_camera_exact, False) == ["base", "side"]  # live matrices of both
+    assert closed_loop.cameras_to_render(PolicySettings.of({**experiments.resolve(default_config, "goal2d"),
+                                                            "cameras": [1]}), False) == ["side"]

@@ -71,6 +71,18 @@ def check_state_tokens(checkpoint, meta: dict, encoder) -> None:
             "the state features store and retrain")
 
 
+def cameras_to_render(policy: PolicySettings, reads_labels: bool) -> list[str]:
+    """What a step must render: the cameras the policy reads; every camera of the set where the exact 2d goal takes
+    their live matrices; nothing for an encoder that reads the simulator's state. A camera is about a fifth of a
+    step's CPU time (bench/profile_eval.py)."""
+    names = list(envs.CAMERA_SETS[policy.stores.cams])
+    if reads_labels:
+        return []
+    if policy.goal.kind == "2d" and policy.goal.calibration == "exact":
+        return names
+    return [names[i] for i in policy.stores.cameras]
+
+
 class ClosedLoop:
     """One environment + the frozen encoder + one policy checkpoint.
 
@@ -93,10 +105,7 @@ class ClosedLoop:
         self.camera_names = list(envs.CAMERA_SETS[p.stores.cams])
         self.uids = [envs.SIM_CAMERA_UID[c] for c in self.camera_names]
         self.read_uids = [self.uids[i] for i in read]
-        # render only what the step needs: the cameras the policy reads, all of the set where the exact 2d goal
-        # takes their live matrices, none for an encoder that reads the simulator's state
-        live = p.goal.kind == "2d" and p.goal.calibration == "exact"
-        rendered = [] if self.reads_labels else self.camera_names if live else [self.camera_names[i] for i in read]
+        rendered = cameras_to_render(p, self.reads_labels)
         self.env = envs.make_env(self.task, config, p.stores.cams if rendered else None, p.stores.resolution,
                                  obs_mode="rgb", cameras=rendered)
         self.approx = envs.approx_camera_matrices(config, self.camera_names, p.stores.resolution)
