@@ -402,8 +402,10 @@ def test_an_encoder_built_for_one_camera_gives_that_cameras_tokens(tiny_run):
     full, _ = registry.build("slots_ssl", config["encoders"], store, weights).encode(rgb)
     side, _ = registry.build("slots_ssl", config["encoders"], store, weights, cameras=[1]).encode(rgb[:, [1]])
     assert side.shape[1] == 1
+    # a batch of other size may round the last float16 bit differently; the other camera's tokens differ by far more
     torch.testing.assert_close(observation.as_stored(side[:, 0], "float16"),
-                               observation.as_stored(full[:, 1], "float16"), rtol=0, atol=0)
+                               observation.as_stored(full[:, 1], "float16"), rtol=2e-3, atol=2e-3)
+    assert not torch.allclose(side[:, 0], full[:, 0], atol=1e-2)
 
 
 def test_training_and_the_closed_loop_build_the_same_inputs_from_one_replayed_episode(tiny_run):
