@@ -109,7 +109,8 @@ def _lowpoly_env_class(task: str):
 def make_env(task: str, config: dict, camera_set: str | None = None, resolution: int = 128, obs_mode: str = "rgb",
              cameras: list[str] | None = None):
     """A single physx_cpu environment of ``task`` with the cameras of ``camera_set`` rendered at ``resolution``
-    (``cameras``: only these of the set, e.g. the ones a policy reads; a camera is a third of a step's CPU time).
+    (``cameras``: only these of the set, e.g. the ones a policy reads; a camera is about a fifth of an evaluation
+    step's CPU time).
 
     ``camera_set=None`` renders no cameras (demo generation). No TimeLimit wrapper: callers enforce
     ``sim.episode_cap`` themselves, so the registered 50-step limit can never truncate an expert."""

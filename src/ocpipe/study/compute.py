@@ -33,14 +33,20 @@ SUFFIX = re.compile(r"(_shard\d+|_epoch_\d+|_run_\d+)$")
 STAGES = ("train", "sweep", "stability", "other", "demos", "frames", "features", "scenes", "encoder", "report")
 
 
+def benchmark_times(path) -> tuple[float, float]:
+    """A Snakemake benchmark file -> (wall seconds, CPU seconds) of its last repeat."""
+    last = Path(path).read_text().strip().splitlines()[-1].split("\t")
+    return float(last[0]), float(last[9])
+
+
 def read_jobs(bench_dir) -> pl.DataFrame:
     """One row per benchmark file: its folder (the rule), name, seconds, CPU seconds and end time (file mtime)."""
     rows = []
     for f in sorted(Path(bench_dir).rglob("*.tsv")):
         rel = f.relative_to(bench_dir)
-        last = f.read_text().strip().splitlines()[-1].split("\t")
+        seconds, cpu = benchmark_times(f)
         folder = rel.parts[0] if len(rel.parts) > 1 else ""
-        rows.append({"folder": folder, "name": rel.stem, "seconds": float(last[0]), "cpu_seconds": float(last[9]),
+        rows.append({"folder": folder, "name": rel.stem, "seconds": seconds, "cpu_seconds": cpu,
                      "end": f.stat().st_mtime})
     if not rows:
         raise FileNotFoundError(f"{bench_dir}: no benchmark files (has anything run here?)")

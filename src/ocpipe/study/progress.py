@@ -13,9 +13,12 @@ from __future__ import annotations
 
 import re
 import statistics
+from collections import Counter
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
+
+from .compute import benchmark_times
 
 JOB_START = re.compile(r"^\[(?P<date>[^\]]+)\]\n(?:local)?rule (?P<rule>\w+):\n(?P<body>(?:[ \t]+.*\n?)*)",
                        re.MULTILINE)
@@ -69,9 +72,9 @@ def parse(log: Path) -> Run:
             rule, count = line.split()
             if rule != "total":
                 planned[rule] = int(count)
-    starts = [_date(m["date"]) for m in JOB_START.finditer(text)]
-    run = Run(log, starts[0] if starts else None, planned)
+    run = Run(log, None, planned)
     for m in JOB_START.finditer(text):
+        run.started = run.started or _date(m["date"])
         fields = {f["key"]: f["value"].strip() for f in FIELD.finditer(m["body"])}
         if "jobid" not in fields:
             continue
@@ -97,8 +100,9 @@ def last_bar(log_file: Path) -> str:
 
 
 def cpu_seconds(benchmark: Path) -> float | None:
+    """A finished job's CPU seconds; None where its benchmark file is missing or not yet whole."""
     try:
-        return float(benchmark.read_text().strip().splitlines()[-1].split("\t")[9])
+        return benchmark_times(benchmark)[1]
     except (OSError, IndexError, ValueError):
         return None
 
@@ -106,17 +110,12 @@ def cpu_seconds(benchmark: Path) -> float | None:
 def estimate(run: Run, workdir, cores: int) -> tuple[float, dict[str, int]]:
     """-> (seconds left if the cores stay busy, {rule: jobs left with no finished job to go by})."""
     history: dict[str, list[float]] = {}
-    for jobid in run.finished:
-        job = run.jobs.get(jobid)
-        if job and job.benchmark:
-            cpu = cpu_seconds(Path(workdir, job.benchmark))
-            if cpu is not None:
-                history.setdefault(job.rule, []).append(cpu)
-    finished_by_rule: dict[str, int] = {}
-    for jobid in run.finished:
-        if jobid in run.jobs:
-            rule = run.jobs[jobid].rule
-            finished_by_rule[rule] = finished_by_rule.get(rule, 0) + 1
+    finished_by_rule: Counter = Counter()
+    for job in (run.jobs[i] for i in run.finished if i in run.jobs):
+        finished_by_rule[job.rule] += 1
+        cpu = cpu_seconds(Path(workdir, job.benchmark)) if job.benchmark else None
+        if cpu is not None:
+            history.setdefault(job.rule, []).append(cpu)
     seconds, unknown = 0.0, {}
     for rule, count in run.planned.items():
         left = count - finished_by_rule.get(rule, 0)
