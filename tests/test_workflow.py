@@ -387,13 +387,12 @@ def test_an_episode_is_the_same_in_a_fresh_env_and_after_other_episodes(tiny_run
 
 
 def test_an_encoder_built_for_one_camera_gives_that_cameras_tokens(tiny_run):
-    """The closed loop of a policy that reads one camera encodes only that one: its tokens, as stored, are the
-    ones the encoder of the whole set gives that camera."""
+    """The closed loop of a policy that reads one camera encodes only that one: its tokens are the ones the
+    encoder of the whole set gives that camera."""
     import torch
 
     from ocpipe.config import validate as cfgmod
     from ocpipe.encoders import registry
-    from ocpipe.policy import observation
 
     res = tiny_run / "results"
     config = cfgmod.load(REPO / "config" / "config.yaml", tiny_run / "tiny.yaml")
@@ -401,11 +400,14 @@ def test_an_encoder_built_for_one_camera_gives_that_cameras_tokens(tiny_run):
     rgb = torch.from_numpy(frames_store.open_store(store)["rgb"][:6])
     full, _ = registry.build("slots_ssl", config["encoders"], store, weights).encode(rgb)
     side, _ = registry.build("slots_ssl", config["encoders"], store, weights, cameras=[1]).encode(rgb[:, [1]])
+    misplaced, _ = registry.build("slots_ssl", config["encoders"], store, weights, cameras=[0]).encode(rgb[:, [1]])
     assert side.shape[1] == 1
-    # a batch of other size may round the last float16 bit differently; the other camera's tokens differ by far more
-    torch.testing.assert_close(observation.as_stored(side[:, 0], "float16"),
-                               observation.as_stored(full[:, 1], "float16"), rtol=2e-3, atol=2e-3)
-    assert not torch.allclose(side[:, 0], full[:, 0], atol=1e-2)
+    # the tiny encoder gives both cameras close tokens, so the test is a ratio: a batch of other size moves the
+    # float32 tokens by ~1e-6, the other camera or the other camera's crop window by ~1e-3
+    error = (side[:, 0] - full[:, 1]).abs().max().item()
+    assert error < 1e-4
+    assert (side[:, 0] - full[:, 0]).abs().max().item() > 100 * error
+    assert (side[:, 0] - misplaced[:, 0]).abs().max().item() > 100 * error
 
 
 def test_training_and_the_closed_loop_build_the_same_inputs_from_one_replayed_episode(tiny_run):
