@@ -3,6 +3,7 @@ seconds per training epoch at the thesis' model width vs the default profile's.
 
     .venv/bin/python bench/bench_policy.py                       # on the default build's stores
     .venv/bin/python bench/bench_policy.py --synthetic 20000     # on a synthetic thesis-shaped store (7 x 256)
+    .venv/bin/python bench/bench_policy.py --decoder --threads 1 # a training step: whole decoder vs last token only
 
 Each loader runs in its own process so its peak RSS is its own."""
 
@@ -108,6 +109,42 @@ def seconds_per_epoch(policy, features, frames, max_batches, threads, camera_app
     return per_batch * len(loader), n, len(loader), sum(p.numel() for p in model.parameters())
 
 
+def time_decoder(policy, steps: int, threads: int, K: int = 7, D: int = 64) -> None:
+    """A training step (forward, backward, AdamW) of ``policy``'s model on random batches of its shapes, with the
+    whole decoder's output (every token, the last one read) against the last layer run for the last token alone
+    (SequencePolicy.current_action_state), alternating so both see the same machine load."""
+    from ocpipe.policy.model import PROPRIO_DIMS, SequencePolicy, goal_dims
+    from ocpipe.policy.settings import PolicySettings
+
+    torch.set_num_threads(threads)
+    settings = PolicySettings.of(policy)
+    B, T, C = policy["batch_size"], policy["window"], len(policy["cameras"])
+    g = torch.Generator().manual_seed(0)
+    batch = (torch.randn(B, T, C, K, D, generator=g), torch.randn(B, T, PROPRIO_DIMS[settings.network.proprio],
+             generator=g), torch.randn(B, T, goal_dims(settings), generator=g))
+    torch.manual_seed(0)
+    model = SequencePolicy(policy, K, D)
+    opt = torch.optim.AdamW(model.parameters(), lr=policy["lr"])
+    paths = {"whole decoder": lambda seq: model.action_states(seq)[:, -1],
+             "last token only": model.current_action_state}
+    seconds = dict.fromkeys(paths, 0.0)
+    for _ in range(steps):
+        for name, state in paths.items():
+            t0 = time.perf_counter()
+            act = state(model.tokens(*batch)[0])
+            loss = model.action_head(act).square().mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            seconds[name] += time.perf_counter() - t0
+    print(f"training step, batch {B}, T {T}, width {policy['width']}, {policy['layers']} layers, {threads} threads, "
+          f"{steps} steps each:")
+    for name, sec in seconds.items():
+        print(f"  {name:<16}{sec / steps * 1000:>8.1f} ms")
+    a, b = seconds.values()
+    print(f"  ratio whole / last token only: {a / b:.2f}x\n")
+
+
 def resolve_with_overrides(config, spec: str) -> dict:
     """'goal2d' or 'goal2d:dropout=0.0,window=20' -> that experiment's policy with the overrides (YAML values)."""
     import yaml
@@ -153,9 +190,16 @@ def main():
         "features store",
     )
     ap.add_argument("--skip-loaders", action="store_true", help="only time epochs")
+    ap.add_argument("--decoder", action="store_true", help="only time a training step with the whole decoder "
+                    "against the last token only, for goal2d and --experiments (random batches, no store needed)")
+    ap.add_argument("--decoder-steps", type=int, default=40)
     args = ap.parse_args()
     config = cfgmod.load(args.config)
     policy = experiments.resolve(config, "goal2d")
+    if args.decoder:
+        for name in ["goal2d", *args.experiments]:
+            time_decoder(resolve_with_overrides(config, name), args.decoder_steps, args.threads)
+        return
     tmp = None
     if args.synthetic:
         from policy_stores import write_stores

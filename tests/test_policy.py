@@ -42,6 +42,22 @@ def test_changing_a_future_timestep_leaves_earlier_outputs_unchanged(visual_head
     assert not torch.allclose(after[:, 3], before[:, 3])
 
 
+@pytest.mark.parametrize("layers,window", [(1, 1), (2, 5), (3, 4)])
+def test_the_current_action_state_is_the_full_decoders_last_action_token(layers, window):
+    """forward reads only the last token, so the last layer computes only that row; it must be the row the whole
+    decoder gives, and its gradients the same."""
+    policy = policy_settings(window=window, layers=layers, goal="2d", cameras=[0, 1])
+    torch.manual_seed(0)
+    model = SequencePolicy(policy, 7, 16).eval()
+    seq = model.tokens(*inputs(policy))[0]
+    full = model.action_states(seq)[:, -1]
+    fast = model.current_action_state(seq)
+    torch.testing.assert_close(fast, full, rtol=0, atol=1e-5)
+    grads = [torch.autograd.grad(out.square().sum(), list(model.decoder.parameters())) for out in (full, fast)]
+    for a, b in zip(*grads):
+        torch.testing.assert_close(b, a, rtol=1e-4, atol=1e-5)
+
+
 VARIANTS = [dict(zip(("goal", "proprio", "visual_head", "gripper", "action_head", "cameras"), v)) for v in
             itertools.product(["none", "2d", "3d"], ["joints7", "qpos9_global"], ["tokens", "deepsets"],
                               ["regression", "bce"], ["linear", "tanh"], [[0], [0, 1]])]
