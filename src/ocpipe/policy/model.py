@@ -185,8 +185,7 @@ class SequencePolicy(nn.Module):
 
     def action_states(self, seq):
         """Sequence (B, L, W) -> the decoder's output at every step's action token (B, T, W), causally masked."""
-        mask = nn.Transformer.generate_square_subsequent_mask(seq.shape[1], device=seq.device, dtype=seq.dtype)
-        h = self.norm(self.decoder(seq, mask=mask, is_causal=True))
+        h = self.norm(self.decoder(seq, mask=causal_mask(seq), is_causal=True))
         return h[:, self.per_step - 1 :: self.per_step]
 
     def current_action_state(self, seq):
@@ -195,7 +194,7 @@ class SequencePolicy(nn.Module):
         alone and runs its feed-forward on it alone; its other L - 1 rows made a training step about 1.7x as long
         (bench/bench_policy.py --decoder)."""
         *inner, last = self.decoder.layers
-        mask = nn.Transformer.generate_square_subsequent_mask(seq.shape[1], device=seq.device, dtype=seq.dtype)
+        mask = causal_mask(seq)
         for layer in inner:
             seq = layer(seq, src_mask=mask, is_causal=True)
         # the last token sees every earlier one, so its row of the causal mask masks nothing
@@ -212,6 +211,11 @@ class SequencePolicy(nn.Module):
         act = self.current_action_state(seq)  # (B, W)
         obj = self.aux_head(act) if self.aux_head is not None else None
         return PolicyOutput(self.action_head(act), readout, obj)
+
+
+def causal_mask(seq: torch.Tensor) -> torch.Tensor:
+    """The (L, L) mask that keeps each token of a (B, L, W) sequence from attending to later ones."""
+    return nn.Transformer.generate_square_subsequent_mask(seq.shape[1], device=seq.device, dtype=seq.dtype)
 
 
 def loss_terms(pred: torch.Tensor, target: torch.Tensor, weights: torch.Tensor, bce: bool) -> dict[str, torch.Tensor]:
