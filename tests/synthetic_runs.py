@@ -31,6 +31,9 @@ def write_rows(config, runs: Path, rows: dict[str, tuple[list[int], int, dict[st
         _classes(classes).write_parquet(targets.artefacts(config, exp, "failures", str(runs))[0])
         train_seeds = targets.artefacts(config, exp, "train_seeds", str(runs))[0]
         _episodes(per_run[0], 40, steps, 0).write_parquet(train_seeds)
+        # a training-time run of 30 episodes with run 0's success rate (Table 5.5)
+        training_time = targets.artefacts(config, exp, "training_time", str(runs))[0]
+        _episodes(round(per_run[0] * 30 / 40), 30, steps, 0).write_parquet(training_time)
         epochs = saved_epochs(resolve(config, exp))
         for epoch, f in zip(epochs, targets.artefacts(config, exp, "sweep", str(runs)), strict=True):
             Path(f).parent.mkdir(parents=True, exist_ok=True)

@@ -82,6 +82,7 @@ EVAL = {
     "stability_runs": 3,
     "stability_episodes": 30,
     "failure_episodes": 200,
+    "training_time_episodes": 30,
 }
 
 
@@ -90,8 +91,8 @@ def test_table_jobs_draw_disjoint_blocks_of_the_test_pool_the_same_for_every_exp
     assert a == jobs.seeds_for("stability", EVAL, 0, run=1)
     assert a != jobs.seeds_for("stability", EVAL, 1, run=1)  # the root seed reshuffles the pool
     draws = [jobs.seeds_for("sweep", EVAL, 0), *(jobs.seeds_for("stability", EVAL, 0, run=r) for r in range(3)),
-             jobs.seeds_for("failure_run", EVAL, 0)]
-    assert [len(d) for d in draws] == [20, 30, 30, 30, 200]
+             jobs.seeds_for("failure_run", EVAL, 0), jobs.seeds_for("training_time", EVAL, 0)]
+    assert [len(d) for d in draws] == [20, 30, 30, 30, 200, 30]
     every = [s for d in draws for s in d]
     assert len(set(every)) == len(every)  # pairwise disjoint
     assert min(every) >= 10200 and max(every) < 11000  # the test pool: the validation pool's 200 seeds come first
@@ -107,9 +108,15 @@ def test_validation_seeds_never_meet_the_test_pool():
         jobs.validation_seeds(EVAL, 201, 0)
 
 
+def test_the_training_time_block_comes_last_so_the_other_blocks_keep_their_seeds():
+    without = {**EVAL, "training_time_episodes": 0}
+    for kind, run in (("sweep", 0), ("stability", 2), ("failure_run", 0)):
+        assert jobs.seeds_for(kind, EVAL, 0, run=run) == jobs.seeds_for(kind, without, 0, run=run)
+
+
 def test_a_test_pool_too_small_for_the_table_jobs_is_named():
-    small = {**EVAL, "seed_pool_size": 400}  # 200 validation + 200 test < 20 + 90 + 200
-    with pytest.raises(ValueError, match="draw 310 disjoint seeds but the test pool"):
+    small = {**EVAL, "seed_pool_size": 400}  # 200 validation + 200 test < 20 + 90 + 200 + 30
+    with pytest.raises(ValueError, match="draw 340 disjoint seeds but the test pool"):
         jobs.seeds_for("sweep", small, 0)
 
 

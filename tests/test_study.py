@@ -73,6 +73,7 @@ def _fake_run(runs, exp, n_runs=3, epochs=(8, 16), pos_rows=85):
     (runs / exp / "stability").mkdir(parents=True)
     for r in range(n_runs):
         episodes(r, [True, False, r == 0]).write_parquet(runs / exp / "stability" / f"run_{r}.episodes.parquet")
+    episodes(0, [True] * 3 + [False] * 27).write_parquet(runs / exp / "training_time.episodes.parquet")
     (runs / exp / "checkpoints").mkdir()
     for e in epochs:
         torch.save({"model": {"pos": torch.zeros(pos_rows, 4), "w": torch.zeros(3, 5)}},
@@ -96,6 +97,11 @@ def test_window_and_head_tables_read_checkpoints_and_sweeps(default_config, tmp_
         _fake_run(runs, exp)
     t = report.write_table(default_config, "table5_5", tmp_path / "t5.csv", tmp_path / "t5.md", runs_dir=runs)
     assert t["Parameters"].to_list() == [85 * 4 + 15] * 4
+    # one 30-episode training-time run per head, not the stability runs: 3 of 30 with its Wilson interval
+    assert t["SR"].to_list() == [pytest.approx(0.1)] * 4 and t["Runs"].to_list() == [1] * 4
+    assert t["Episodes per run"].to_list() == [30] * 4
+    assert t["SR 95 % low"][0] == pytest.approx(0.0346, abs=1e-3) and t["SR 95 % high"][0] == pytest.approx(0.2562,
+                                                                                                           abs=1e-3)
     assert pl.read_csv(tmp_path / "t5.csv")["Head"].to_list() == ["flatten", "deepsets", "weighted_pool",
                                                                   "slot_transformer"]
 

@@ -40,6 +40,7 @@ BEST = RUN + "/best.json"
 STABILITY = RUN + "/stability/run_{run}"  # .episodes.parquet and .steps.parquet
 FAILURE_RUN = RUN + "/failure_run"
 TRAIN_SEEDS = RUN + "/train_seeds"
+TRAINING_TIME = RUN + "/training_time"  # Table 5.5's one run on the best checkpoint
 FAILURES = RUN + "/failures.parquet"
 
 LEVER = RESULTS + "/levers/{lever}"  # one lever: checkpoints/, train_log.parquet, validation.*.parquet

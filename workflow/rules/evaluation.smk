@@ -1,6 +1,7 @@
 # Closed-loop evaluation (docs/study.md, Evaluation protocol): a sweep job per (experiment, checkpoint), the best
-# checkpoint, stability runs (one job each), training-seed runs, failure classification (docs/study.md, Failure
-# taxonomy), and the study's tables and figures (docs/study.md, Tables and figures).
+# checkpoint, stability runs (one job each), Table 5.5's training-time runs, training-seed runs, failure
+# classification (docs/study.md, Failure taxonomy), and the study's tables and figures (docs/study.md, Tables and
+# figures).
 from ocpipe.study import findings, registry, targets
 
 
@@ -101,6 +102,19 @@ use rule stability as failure_run with:
     params:
         **EVAL_PARAMS,
         kind="failure_run",
+
+
+use rule stability as training_time_run with:
+    output:
+        episodes=f"{paths.TRAINING_TIME}.episodes.parquet",
+        steps=f"{paths.TRAINING_TIME}.steps.parquet",
+    log:
+        "results/logs/training_time_run/{exp}.log",
+    benchmark:
+        "results/benchmarks/training_time_run/{exp}.tsv"
+    params:
+        **EVAL_PARAMS,
+        kind="training_time",
 
 
 use rule stability as train_seed_run with:

@@ -1,4 +1,5 @@
-# rule sweep, and the rules derived from it (stability, failure_run, train_seed_run): one evaluation job
+# rule sweep, and the rules derived from it (stability, failure_run, training_time_run, train_seed_run): one
+# evaluation job
 from ocpipe.evaluation import jobs
 from ocpipe.util import runlog
 

@@ -1,5 +1,6 @@
 """The held-out evaluation pool, split: a validation pool for everything that chooses a setting (levers, tuning)
-and a test pool for the tables, whose sweep, stability runs and failure run each take their own block."""
+and a test pool for the tables, whose sweep, stability runs, failure run and training-time run each take their
+own block."""
 
 from __future__ import annotations
 
@@ -13,11 +14,12 @@ def pools(evaluation_cfg: dict) -> tuple[np.ndarray, np.ndarray]:
 
 
 def table_blocks(evaluation_cfg: dict) -> dict[tuple[str, int], int]:
-    """(kind, run) -> episodes, in the order their blocks are cut from the shuffled test pool."""
+    """(kind, run) -> episodes, in the order their blocks are cut from the shuffled test pool (the training-time
+    run's last, so adding it moved no other block's seeds)."""
     ev = evaluation_cfg
     return {("sweep", 0): ev["sweep_episodes"],
             **{("stability", r): ev["stability_episodes"] for r in range(ev["stability_runs"])},
-            ("failure_run", 0): ev["failure_episodes"]}
+            ("failure_run", 0): ev["failure_episodes"], ("training_time", 0): ev["training_time_episodes"]}
 
 
 def pool_problems(evaluation_cfg: dict) -> list[str]:
@@ -28,6 +30,6 @@ def pool_problems(evaluation_cfg: dict) -> list[str]:
                 f"{evaluation_cfg['seed_pool_size']}"]
     need = sum(table_blocks(evaluation_cfg).values())
     if need > len(test):
-        return [f"  evaluation.seed_pool_size: the sweep, stability runs and failure run draw {need} disjoint seeds "
-                f"but the test pool (seed_pool_size - validation_pool_size) holds {len(test)}"]
+        return [f"  evaluation.seed_pool_size: the sweep, stability, failure and training-time runs draw {need} "
+                f"disjoint seeds but the test pool (seed_pool_size - validation_pool_size) holds {len(test)}"]
     return []

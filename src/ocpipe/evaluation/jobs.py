@@ -1,4 +1,5 @@
-"""What each evaluation job runs: which checkpoint, which seeds (sweep, stability run, failure run)."""
+"""What each evaluation job runs: which checkpoint, which seeds (sweep, stability run, failure run, training-time
+run)."""
 
 from __future__ import annotations
 
@@ -17,14 +18,14 @@ from . import closed_loop
 
 # random streams: (root seed, purpose)
 TEST_POOL, VALIDATION_POOL, TRAIN_SEEDS = 1, 4, 3
-TEST_KINDS = ("sweep", "stability", "failure_run")  # each draws its own block of the test pool
+TEST_KINDS = ("sweep", "stability", "failure_run", "training_time")  # each draws its own block of the test pool
 
 
 def seeds_for(kind: str, evaluation_cfg: dict, seed: int, run: int = 0,
               episode_seeds: list[int] | None = None) -> list[int]:
-    """A table job's seeds. The sweep, stability run ``run`` and the failure run take pairwise disjoint blocks of
-    one shuffle of the test pool, the same for every experiment (rows are compared on the same episodes);
-    'train_seeds' are demo seeds (Table 5.6)."""
+    """A table job's seeds. The sweep, stability run ``run``, the failure run and the training-time run take
+    pairwise disjoint blocks of one shuffle of the test pool, the same for every experiment (rows are compared on
+    the same episodes); 'train_seeds' are demo seeds (Table 5.6)."""
     if kind == "train_seeds":
         return training_seeds(evaluation_cfg, episode_seeds or [], seed)
     if kind not in TEST_KINDS:

@@ -23,7 +23,8 @@ from .targets import experiments_of
 
 # benchmark folder -> (what the job builds, stage); the file name, less a shard/epoch/run suffix, names the thing
 EXPERIMENT_STAGES = {"train": "train", "sweep": "sweep", "stability": "stability", "best": "other",
-                     "failures": "other", "failure_run": "other", "train_seed_run": "other"}
+                     "failures": "other", "failure_run": "other", "train_seed_run": "other",
+                     "training_time_run": "stability"}  # Table 5.5's run stands in for its rows' stability runs
 STORE_STAGES = {"demos_shard": "demos", "demos_merge": "demos", "demos_import": "demos",
                 "frames_shard": "frames", "frames_merge": "frames", "frames_report": "frames",
                 "features": "features", "features_diagnostics": "features", "attention_maps": "features",

@@ -29,8 +29,8 @@ class Finding:
     judge: Callable[[dict[str, Row]], list[stats.Check]]
 
 
-def _sr(rows, label):
-    return stats.successes(rows[label].data["stability"])
+def _sr(rows, label, need="stability"):
+    return stats.successes(rows[label].data[need])
 
 
 def _lengths(rows, label):
@@ -93,7 +93,8 @@ def _f5(r):
 
 def _f6(r):
     st = "Slot Transformer"
-    return [stats.rate_less(other, _sr(r, other), st, _sr(r, st), strict=False) for other in r if other != st]
+    run = "training_time"  # the study's heads: one 30-episode training-time run each
+    return [stats.rate_less(other, _sr(r, other, run), st, _sr(r, st, run), strict=False) for other in r if other != st]
 
 
 def _f7(r):
@@ -141,7 +142,7 @@ FINDINGS = (
             "SPOT 55.0; CLS 32.6; 4x4 31.7; dense 1.0 % (peak)",
             ("DINO CLS", "DINO 4x4", "DINO 14x14 dense", "slots_ssl 14 slots (offline)"), ("stability",), _f5),
     Finding(6, "table5_5", "Slot Transformer at least as good as the other heads (qualitative)",
-            "13.3 against 10.0 / 6.7 / 10.0 % (30 episodes)", (), ("stability",), _f6),
+            "13.3 against 10.0 / 6.7 / 10.0 % (30 episodes)", (), ("training_time",), _f6),
     Finding(7, "table5_6", "cross-attention fits the training seeds better than concatenation, both equal held out "
             "(so its gap is larger)", "training seeds 60.0 vs 38.6 %; held out 31.0 vs 31.0 %",
             ("Concatenation", "Cross-attention"), ("stability", "train_seeds"), _f7),

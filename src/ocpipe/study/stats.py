@@ -33,6 +33,14 @@ def successes(episodes: pl.DataFrame) -> tuple[int, int]:
     return int(kept["success"].sum()), len(kept)
 
 
+def interval(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """The Wilson score interval of a success rate of k in n: the spread a single run's SR can claim."""
+    if n == 0:
+        return float("nan"), float("nan")
+    ci = stats.binomtest(k, n).proportion_ci(confidence, method="wilson")
+    return float(ci.low), float(ci.high)
+
+
 def _rate(kn: tuple[int, int]) -> str:
     k, n = kn
     return f"{k}/{n} ({100 * k / n:.1f} %)" if n else f"{k}/0"

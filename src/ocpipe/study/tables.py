@@ -10,6 +10,7 @@ import polars as pl
 from ..evaluation import taxonomy
 from ..evaluation.closed_loop import success_rate
 from ..util.atomic import atomic_path
+from . import stats
 
 TABLE5_2_CLASSES = ("Success", "Near Miss", "Drop", "No Grasp", "Idle", "Unknown")
 
@@ -92,9 +93,23 @@ def representation_columns(row: Row) -> dict:
             "Batch": p["batch_size"], "Minutes/epoch": _minutes_per_epoch(row), **_stability(row)}
 
 
+def _one_run(row: Row, need: str) -> dict:
+    """SR of one run (trivial successes excluded) with its 95 % Wilson interval, and the mean episode length."""
+    if row.status:
+        return {"SR": None, "SR 95 % low": None, "SR 95 % high": None, "Episode length mean": None}
+    episodes = row.data[need]
+    k, n = stats.successes(episodes)
+    low, high = stats.interval(k, n)
+    kept = episodes.filter(~pl.col("trivial"))
+    return {"SR": k / n if n else float("nan"), "SR 95 % low": low, "SR 95 % high": high,
+            "Episode length mean": float(kept["steps"].mean()) if n else float("nan")}
+
+
 def head_columns(row: Row) -> dict:
+    """Table 5.5: one training-time run per head (the study's were 30 episodes each, read qualitatively)."""
     return {"Head": row.policy["visual_head"],
-            "Parameters": None if row.status else row.data["checkpoints"]["parameters"], **_stability(row)}
+            "Parameters": None if row.status else row.data["checkpoints"]["parameters"],
+            **_one_run(row, "training_time")}
 
 
 def generalization_columns(row: Row) -> dict:
@@ -120,8 +135,9 @@ def setting_columns(header: str, key: str):
 
 
 def build(columns, rows: list[Row]) -> pl.DataFrame:
-    """A table of stability results: one row per Row, ``columns(row)`` (a registry entry's columns) after its
-    label, then how many episodes and runs it rests on. Failure distributions come from table5_2 instead."""
+    """A table of stability (or training-time) results: one row per Row, ``columns(row)`` (a registry entry's
+    columns) after its label, then how many episodes and runs it rests on. Failure distributions come from
+    table5_2 instead."""
     out = []
     for row in rows:
         r = {"Method": row.label, **columns(row)}
@@ -129,6 +145,9 @@ def build(columns, rows: list[Row]) -> pl.DataFrame:
             s = stability_summary(row.data["stability"])
             r |= {"Episodes per run": s["episodes_per_run"], "Runs": s["runs"],
                   "Trivial excluded": s["trivial_excluded"]}
+        elif row.status is None and "training_time" in row.data:
+            eps = row.data["training_time"]
+            r |= {"Episodes per run": len(eps), "Runs": 1, "Trivial excluded": int(eps["trivial"].sum())}
         out.append(r)
     frame = pl.DataFrame(out, infer_schema_length=None)
     if any(r.status for r in rows):

@@ -21,7 +21,8 @@ def artefacts(config: dict, exp: str, need: str, runs_dir: str = "results/runs")
         return [paths.in_runs(paths.SWEEP, runs_dir, exp=exp, epoch=f"{e:04d}") + ".episodes.parquet"
                 for e in saved_epochs(resolve(config, exp))]
     single = {"failures": paths.FAILURES, "train_log": paths.TRAIN_LOG, "checkpoints": paths.CHECKPOINTS,
-              "train_seeds": paths.TRAIN_SEEDS + ".episodes.parquet", "best": paths.BEST}
+              "train_seeds": paths.TRAIN_SEEDS + ".episodes.parquet", "best": paths.BEST,
+              "training_time": paths.TRAINING_TIME + ".episodes.parquet"}
     if need not in single:
         raise ValueError(f"unknown table need {need!r}")
     return [paths.in_runs(single[need], runs_dir, exp=exp)]
