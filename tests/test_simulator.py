@@ -67,3 +67,25 @@ def test_a_camera_rendered_alone_gives_the_pixels_it_gives_beside_the_others(pic
         alone.close()
     with pytest.raises(ValueError, match="not all in camera set 'dual'"):
         envs.make_env("PickCube-v1", cfg, "dual", 64, cameras=["hand"])
+
+
+@pytest.mark.parametrize("task", envs.TASKS)
+def test_a_steps_grasp_flag_is_read_from_its_info_and_equals_the_contact_test(task):
+    """The closed loop reads the grasp flag that the step's own evaluate() computed instead of testing contacts
+    again: the two agree, and the flag does come from ``info``."""
+    from conftest import REPO
+
+    from ocpipe.config import validate as C
+
+    env = envs.make_env(task, C.load(REPO / "config" / "config.yaml"))
+    try:
+        env.reset(seed=10_002)
+        rng = np.random.default_rng(0)
+        for _ in range(5):
+            _, _, _, _, info = env.step(rng.uniform(-1, 1, (1, 8)).astype(np.float32))
+            assert envs.task_readouts(env, info=info)["is_grasped"] == envs.task_readouts(env)["is_grasped"]
+        key = "is_grasped" if task == "PickCube-v1" else "is_cubeA_grasped"
+        flipped = {**info, key: ~info[key]}
+        assert envs.task_readouts(env, info=flipped)["is_grasped"] != envs.task_readouts(env)["is_grasped"]
+    finally:
+        env.close()

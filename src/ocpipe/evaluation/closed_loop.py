@@ -133,9 +133,11 @@ class ClosedLoop:
         return observation.as_stored(tokens.cpu(), self.meta.get("tokens_dtype", "float32"))[0]
 
     @torch.inference_mode()
-    def _observe(self, obs, first: bool) -> tuple[torch.Tensor, np.ndarray, np.ndarray, dict]:
-        """-> this step's raw inputs (tokens (C, K, D), proprio (P,), goal (G,)) and its labels."""
-        rows = observation.step_labels(self.env, first)
+    def _observe(self, obs, first: bool, info: dict | None = None) -> tuple[torch.Tensor, np.ndarray, np.ndarray,
+                                                                            dict]:
+        """-> this step's raw inputs (tokens (C, K, D), proprio (P,), goal (G,)) and its labels; ``info``: what
+        the step that led here returned."""
+        rows = observation.step_labels(self.env, first, info)
         labels = {k: v[0] for k, v in rows.items()}
         cameras = observation.step_cameras(self.policy, obs, self.uids, self.approx)
         return (self._tokens(obs, labels), observation.proprio(self.policy, rows)[0],
@@ -168,9 +170,9 @@ class ClosedLoop:
         steps: dict[str, list] = {k: [] for k in ("step", "action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos",
                                                    "obj_est", "obj_seen", "reward")}
         chunks: deque = deque(maxlen=-(-self.policy.network.horizon // self.execute))  # (query step, (H, 8) actions)
-        success, total = False, 0.0
+        success, total, info = False, 0.0, None
         for t in range(self.cap):
-            tokens, proprio, goal, labels = self._observe(obs, first=t == 0)
+            tokens, proprio, goal, labels = self._observe(obs, first=t == 0, info=info)
             pose = self.object_pose(tokens)
             seen = self.true_pose(labels) if self.readout_filter == "true_pose" and pose is not None else pose
             window.append((tokens, proprio, goal, seen if seen is not None else torch.zeros(0)))

@@ -100,9 +100,10 @@ def step_cameras(policy: PolicySettings, obs, uids: list[str], approx: tuple | N
     return K, E
 
 
-def step_labels(env, first: bool) -> dict:
-    """One simulator step's labels, each with a leading axis of 1 (as a frames store's rows)."""
-    labels = envs.task_readouts(env, after_reset=first)
+def step_labels(env, first: bool, info: dict | None = None) -> dict:
+    """One simulator step's labels, each with a leading axis of 1 (as a frames store's rows); ``info``: what the
+    step that led here returned (envs.task_readouts)."""
+    labels = envs.task_readouts(env, after_reset=first, info=info)
     return {k: np.asarray(v)[None] for k, v in labels.items()}
 
 
