@@ -97,12 +97,9 @@ def _one_run(row: Row, need: str) -> dict:
     """SR of one run (trivial successes excluded) with its 95 % Wilson interval, and the mean episode length."""
     if row.status:
         return {"SR": None, "SR 95 % low": None, "SR 95 % high": None, "Episode length mean": None}
-    episodes = row.data[need]
-    k, n = stats.successes(episodes)
-    low, high = stats.interval(k, n)
-    kept = episodes.filter(~pl.col("trivial"))
-    return {"SR": k / n if n else float("nan"), "SR 95 % low": low, "SR 95 % high": high,
-            "Episode length mean": float(kept["steps"].mean()) if n else float("nan")}
+    s = stability_summary(row.data[need])  # one run: its SR and mean length
+    low, high = stats.interval(*stats.successes(row.data[need]))
+    return {"SR": s["sr_mean"], "SR 95 % low": low, "SR 95 % high": high, "Episode length mean": s["length_mean"]}
 
 
 def head_columns(row: Row) -> dict:
@@ -141,13 +138,11 @@ def build(columns, rows: list[Row]) -> pl.DataFrame:
     out = []
     for row in rows:
         r = {"Method": row.label, **columns(row)}
-        if row.status is None and "stability" in row.data:
-            s = stability_summary(row.data["stability"])
+        runs = next((row.data[k] for k in ("stability", "training_time") if k in row.data), None)
+        if row.status is None and runs is not None:
+            s = stability_summary(runs)
             r |= {"Episodes per run": s["episodes_per_run"], "Runs": s["runs"],
                   "Trivial excluded": s["trivial_excluded"]}
-        elif row.status is None and "training_time" in row.data:
-            eps = row.data["training_time"]
-            r |= {"Episodes per run": len(eps), "Runs": 1, "Trivial excluded": int(eps["trivial"].sum())}
         out.append(r)
     frame = pl.DataFrame(out, infer_schema_length=None)
     if any(r.status for r in rows):
