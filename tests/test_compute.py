@@ -93,6 +93,15 @@ def test_record_copies_a_whole_runs_tables_and_refuses_part_of_one(default_confi
     assert (out / "table5_3.csv").read_text() == "table5_3,1\n"
     assert not (out / "table5_99.csv").exists()  # a table of an older run does not survive into this record
     assert "Commit `abc123`" in (out / "README.md").read_text()
+    assert not (out / "rule_times.csv").exists()  # no run log beside the results: no rule times
+    log = tmp_path / ".snakemake" / "log" / "2026-12-03T000000.snakemake.log"
+    log.parent.mkdir(parents=True)
+    log.write_text("[Thu Dec  3 00:00:00 2026]\nlocalrule train:\n    jobid: 1\n"
+                   "    benchmark: results/benchmarks/train/goal2d.tsv\n")
+    _bench(tmp_path / "results" / "benchmarks", "train/goal2d.tsv", 300, 290, 1_000_000.0)
+    record.write(default_config, tmp_path / "results", out, "time snakemake --cores 2 all", "abc123")
+    assert (out / "rule_times.csv").read_text() == "rule,jobs,median_cpu_seconds,cpu_seconds\ntrain,1,290.0,290.0\n"
+    assert "rule_times.csv" in (out / "README.md").read_text()
     (tables / "table5_7.md").unlink()
     with pytest.raises(FileNotFoundError, match="table5_7.md"):
         record.write(default_config, tmp_path / "results", out, "cmd", "abc123")

@@ -66,6 +66,40 @@ def test_progress_names_running_jobs_their_bars_and_an_estimate_that_says_what_i
     assert out[-1].endswith("stability x4, table x1")
 
 
+def _run_dir(tmp_path, log=LOG):
+    (tmp_path / ".snakemake" / "log").mkdir(parents=True)
+    (tmp_path / ".snakemake" / "log" / "2026-12-02T182344.snakemake.log").write_text(log)
+    (tmp_path / "results" / "benchmarks" / "train").mkdir(parents=True)
+    (tmp_path / "results" / "benchmarks" / "train" / "a.tsv").write_text(BENCH.format(s=370.0, cpu=360.0))
+    return tmp_path
+
+
+def test_rules_with_no_finished_job_are_priced_from_the_recorded_run_and_said_apart(tmp_path):
+    work = _run_dir(tmp_path)
+    record = work / progress.RULE_TIMES
+    record.parent.mkdir(parents=True)
+    # the recorded run priced train at 100 s (this run's own 360 s wins) and stability at 240 s; no table
+    record.write_text("rule,jobs,median_cpu_seconds,cpu_seconds\ntrain,2,100.0,200.0\nstability,4,240.0,960.0\n")
+    out = progress.lines(work, cores=2, now=datetime(2026, 12, 2, 19, 23, 48))
+    assert "left: 6 jobs; 1 of them about 3 min on 2 cores" in out[-3]
+    assert out[-2].startswith("  4 more, of rules with no finished job yet, about 8 min as the recorded run")
+    assert out[-1].endswith("are not in that figure: table x1")
+
+
+def test_rule_times_come_from_every_logged_job_with_a_benchmark_file(tmp_path):
+    work = _run_dir(tmp_path)
+    (work / "results" / "benchmarks" / "stability").mkdir()
+    (work / "results" / "benchmarks" / "stability" / "a_run_0.tsv").write_text(BENCH.format(s=200.0, cpu=180.0))
+    (work / "results" / "benchmarks" / "train" / "b.tsv").write_text("s\th:m:s\n")  # still being written
+    table = progress.write_rule_times(work, work / "times.csv")
+    assert table.rows() == [("stability", 1, 180.0, 180.0), ("train", 1, 360.0, 360.0)]
+    assert progress.read_rule_times(work / "times.csv") == {"stability": 180.0, "train": 360.0}
+    assert progress.read_rule_times(work / "none.csv") == {}
+    (work / ".snakemake" / "log" / "2026-12-02T182344.snakemake.log").write_text("Building DAG of jobs...\n")
+    with pytest.raises(FileNotFoundError, match="no run log names a job"):
+        progress.write_rule_times(work, work / "times.csv")
+
+
 def test_progress_without_a_run_says_so(tmp_path):
 
     with pytest.raises(FileNotFoundError, match="no Snakemake run log"):

@@ -7,7 +7,9 @@ line of its progress bar) and the benchmark files of the finished jobs (their CP
 The time left is an estimate, and says what it rests on: for each rule, the median CPU time of this run's
 finished jobs of that rule, times the rule's jobs still to run, summed and divided by the cores. It assumes the
 cores stay busy and that a rule's later jobs cost what its earlier ones did (a StackCube stability run costs more
-than a PickCube one); jobs of rules with no finished job yet are counted apart, not guessed."""
+than a PickCube one). A rule with no finished job yet is priced from the recorded full run
+(`docs/results/rule_times.csv`, which `ocpipe record` writes) where that run had it, and the estimate gives that
+part apart, since another profile or machine costs otherwise; a rule in neither is counted, not guessed."""
 
 from __future__ import annotations
 
@@ -18,6 +20,9 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
+import polars as pl
+
+from ..util.atomic import atomic_path
 from .compute import benchmark_times
 
 JOB_START = re.compile(r"^\[(?P<date>[^\]]+)\]\n(?:local)?rule (?P<rule>\w+):\n(?P<body>(?:[ \t]+.*\n?)*)",
@@ -25,6 +30,7 @@ JOB_START = re.compile(r"^\[(?P<date>[^\]]+)\]\n(?:local)?rule (?P<rule>\w+):\n(
 FINISHED = re.compile(r"^Finished jobid: (?P<id>\d+) \(Rule: (?P<rule>\w+)\)", re.MULTILINE)
 STEPS = re.compile(r"^(?P<done>\d+) of (?P<total>\d+) steps \(\d+%\) done", re.MULTILINE)
 FIELD = re.compile(r"^\s+(?P<key>\w+): (?P<value>.*)$", re.MULTILINE)
+RULE_TIMES = Path("docs", "results", "rule_times.csv")  # a recorded run's per-rule CPU time, under the workdir
 
 
 @dataclass
@@ -107,25 +113,73 @@ def cpu_seconds(benchmark: Path) -> float | None:
         return None
 
 
-def estimate(run: Run, workdir, cores: int) -> tuple[float, dict[str, int]]:
-    """-> (seconds left if the cores stay busy, {rule: jobs left with no finished job to go by})."""
+def cpu_history(run: Run, workdir) -> dict[str, list[float]]:
+    """rule -> CPU seconds of each of the run's finished jobs whose benchmark file is whole."""
     history: dict[str, list[float]] = {}
-    finished_by_rule: Counter = Counter()
-    for job in (run.jobs[i] for i in run.finished if i in run.jobs):
-        finished_by_rule[job.rule] += 1
+    for job in (run.jobs[i] for i in sorted(run.finished) if i in run.jobs):
         cpu = cpu_seconds(Path(workdir, job.benchmark)) if job.benchmark else None
         if cpu is not None:
             history.setdefault(job.rule, []).append(cpu)
-    seconds, unknown = 0.0, {}
+    return history
+
+
+def write_rule_times(workdir, path) -> pl.DataFrame:
+    """Every job of ``workdir``'s results with a benchmark file, whichever run made it, per rule: jobs, median and
+    total CPU seconds, to ``path`` (CSV). The rule of a benchmark file is read from the run logs that started it."""
+    rule_of = {}
+    for log in sorted(Path(workdir, ".snakemake", "log").glob("*.snakemake.log")):
+        rule_of |= {Path(workdir, j.benchmark).resolve(): j.rule for j in parse(log).jobs.values() if j.benchmark}
+    history: dict[str, list[float]] = {}
+    for bench, rule in rule_of.items():
+        cpu = cpu_seconds(bench)
+        if cpu is not None:
+            history.setdefault(rule, []).append(cpu)
+    if not history:
+        raise FileNotFoundError(f"{workdir}: no run log names a job whose benchmark file is there to record")
+    table = pl.DataFrame([{"rule": rule, "jobs": len(cpu), "median_cpu_seconds": round(statistics.median(cpu), 1),
+                           "cpu_seconds": round(sum(cpu), 1)} for rule, cpu in sorted(history.items())])
+    with atomic_path(path) as tmp:
+        table.write_csv(tmp)
+    return table
+
+
+def read_rule_times(path) -> dict[str, float]:
+    """A recorded run's rule -> median CPU seconds; empty where there is no record."""
+    if not Path(path).is_file():
+        return {}
+    return dict(pl.read_csv(path).select("rule", "median_cpu_seconds").iter_rows())
+
+
+@dataclass
+class Estimate:
+    """Seconds left on the given cores if they stay busy, priced from this run's finished jobs and, for rules
+    with none yet, from a recorded run; jobs of rules in neither are counted by rule."""
+
+    seconds: float = 0.0
+    jobs: int = 0
+    recorded_seconds: float = 0.0
+    recorded_jobs: int = 0
+    unknown: dict[str, int] = field(default_factory=dict)
+
+
+def estimate(run: Run, workdir, cores: int, recorded: dict[str, float] | None = None) -> Estimate:
+    history = cpu_history(run, workdir)
+    finished_by_rule = Counter(run.jobs[i].rule for i in run.finished if i in run.jobs)
+    recorded = recorded or {}
+    est = Estimate()
     for rule, count in run.planned.items():
         left = count - finished_by_rule.get(rule, 0)
         if left <= 0:
             continue
         if rule in history:
-            seconds += statistics.median(history[rule]) * left
+            est.seconds += statistics.median(history[rule]) * left / max(cores, 1)
+            est.jobs += left
+        elif rule in recorded:
+            est.recorded_seconds += recorded[rule] * left / max(cores, 1)
+            est.recorded_jobs += left
         else:
-            unknown[rule] = left
-    return seconds / max(cores, 1), unknown
+            est.unknown[rule] = left
+    return est
 
 
 def _minutes(seconds: float) -> str:
@@ -145,11 +199,15 @@ def lines(workdir=".", cores: int = 2, now: datetime | None = None) -> list[str]
         bar = last_bar(Path(workdir, job.log)) if job.log else ""
         what = f"{job.rule} {job.wildcards}".strip()
         out.append(f"  {what}" + (f"  |  {bar}" if bar else ""))
-    left, unknown = estimate(run, workdir, cores)
-    n_left, n_unknown = run.total - run.done, sum(unknown.values())
-    out.append(f"left: {n_left} jobs; {n_left - n_unknown} of them about {_minutes(left)} on {cores} cores (for each "
-               "rule, the median CPU time of this run's finished jobs x its jobs left; cores kept busy)")
-    if unknown:
-        out.append(f"  the other {n_unknown}, of rules with no finished job yet, are not in that figure: "
-                   + ", ".join(f"{rule} x{n}" for rule, n in sorted(unknown.items())))
+    est = estimate(run, workdir, cores, read_rule_times(Path(workdir, RULE_TIMES)))
+    out.append(f"left: {run.total - run.done} jobs; {est.jobs} of them about {_minutes(est.seconds)} on {cores} "
+               "cores (for each rule, the median CPU time of this run's finished jobs x its jobs left; cores kept "
+               "busy)")
+    if est.recorded_jobs:
+        out.append(f"  {est.recorded_jobs} more, of rules with no finished job yet, about "
+                   f"{_minutes(est.recorded_seconds)} as the recorded run ({RULE_TIMES}) priced their rules (its "
+                   "profile and machine; another costs otherwise)")
+    if est.unknown:
+        out.append(f"  the other {sum(est.unknown.values())}, of rules with no finished job and no record, are not "
+                   "in that figure: " + ", ".join(f"{rule} x{n}" for rule, n in sorted(est.unknown.items())))
     return out

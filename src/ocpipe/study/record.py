@@ -1,5 +1,6 @@
 """The record of a full run: its tables, findings and compute table copied as the pipeline wrote them into a folder
-under version control (docs/results/), with the commit and command that made them."""
+under version control (docs/results/), with the commit and command that made them, and each rule's CPU time
+(rule_times.csv), by which `ocpipe progress` prices a later run's jobs before any of their rule has finished."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from ..util.atomic import atomic_path
+from . import progress
 
 
 def recorded_files(config: dict, tables_dir) -> list[Path]:
@@ -35,10 +37,11 @@ def commit_of(repo) -> str:
 
 
 def write(config: dict, results, out_dir, command: str, commit: str | None = None) -> list[Path]:
-    """Copy the run's tables into ``out_dir`` (replacing what was there) and write its README.md; ``commit``
-    defaults to that of the checkout holding ``results``."""
+    """Copy the run's tables into ``out_dir`` (replacing what was there), write its rule times where the run's
+    logs are beside ``results`` (its workdir), and its README.md; ``commit`` defaults to that of the workdir."""
     files = recorded_files(config, Path(results, "tables"))
-    commit = commit or commit_of(Path(results).resolve().parent)
+    workdir = Path(results).resolve().parent
+    commit = commit or commit_of(workdir)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for old in out.glob("*"):
@@ -47,12 +50,20 @@ def write(config: dict, results, out_dir, command: str, commit: str | None = Non
     for f in files:
         with atomic_path(out / f.name) as tmp:
             shutil.copyfile(f, tmp)
+    try:
+        progress.write_rule_times(workdir, out / progress.RULE_TIMES.name)
+        rule_times = True
+    except FileNotFoundError:  # the results folder was moved away from its run logs: the tables still stand
+        rule_times = False
     when = datetime.now(timezone.utc).strftime("%Y-%m-%d")
     note = (f"# The last full run\n\nCommit `{commit}`, profile {config.get('profile', '?')}, recorded {when}.\n"
             f"Command, from a fresh clone:\n\n```bash\n{command}\n```\n\n"
             "Every file here is the pipeline's own output, copied by `ocpipe record` (never edited): the study's "
             "tables (`table5_*`), the findings this run reproduces (`findings`) and where its time went "
-            "(`compute`).\n")
+            "(`compute`).\n"
+            + ("`rule_times.csv` is each rule's jobs and CPU seconds in that run, from its benchmark files; "
+               "`ocpipe progress` prices a later run's jobs by it until their own rule has a finished job.\n"
+               if rule_times else ""))
     with atomic_path(out / "README.md") as tmp:
         tmp.write_text(note)
     return [out / f.name for f in files]
