@@ -110,3 +110,18 @@ def test_record_copies_a_whole_runs_tables_and_refuses_part_of_one(default_confi
 def test_the_compute_jobs_own_benchmark_is_a_table_job():
     assert compute.owner("", "compute") == ("table", "compute", "report")
     assert compute.owner("", "something_new") == ("other", "something_new", "other")
+
+
+def test_record_blocks_show_the_recorded_files_and_name_a_missing_one(tmp_path):
+    from ocpipe.study import record
+
+    (tmp_path / "table5_1.md").write_text("| a |\n|---|\n| 1 |\n")
+    text = "# Results\n<!-- record: table5_1.md -->\nold table\nold line\n<!-- /record -->\nafter\n"
+    assert record.fill_marked(text, tmp_path) == (
+        "# Results\n<!-- record: table5_1.md -->\n| a |\n|---|\n| 1 |\n<!-- /record -->\nafter\n")
+    empty = "<!-- record: table5_1.md -->\n<!-- /record -->\n"  # as a new README holds it
+    assert record.fill_marked(empty, tmp_path) == (
+        "<!-- record: table5_1.md -->\n| a |\n|---|\n| 1 |\n<!-- /record -->\n")
+    assert record.fill_marked(record.fill_marked(text, tmp_path), tmp_path) == record.fill_marked(text, tmp_path)
+    with pytest.raises(FileNotFoundError, match="findings.md"):
+        record.fill_marked("<!-- record: findings.md -->\n\n<!-- /record -->", tmp_path)

@@ -37,6 +37,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("results", nargs="?", default="results")
     p.add_argument("--out", default="docs/results")
     p.add_argument("--command", default="time snakemake --cores 2 all", help="the command that made the run")
+    p.add_argument("--readme", default="README.md", help="a file whose `<!-- record: NAME -->` blocks show the "
+                   "recorded NAME (default README.md; '' for none)")
     p.add_argument("--config", nargs="*", default=["config/config.yaml"], help=CONFIG_HELP)
     return top
 
@@ -84,7 +86,8 @@ def compute(args) -> int:
 def record(args) -> int:
     from .study import record
 
-    files = record.write(validate.load(*args.config), args.results, args.out, args.command)
+    files = record.write(validate.load(*args.config), args.results, args.out, args.command,
+                         readme=args.readme or None)
     print(f"recorded {len(files)} files in {args.out}")
     return 0
 

@@ -4,6 +4,7 @@ under version control (docs/results/), with the commit and command that made the
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 from datetime import datetime, timezone
@@ -36,9 +37,24 @@ def commit_of(repo) -> str:
     return f"{head.stdout.strip()} (with uncommitted changes)" if dirty else head.stdout.strip()
 
 
-def write(config: dict, results, out_dir, command: str, commit: str | None = None) -> list[Path]:
+MARKED = re.compile(r"(<!-- record: (?P<name>[\w.]+) -->\n)(?:.*?\n)?(<!-- /record -->)", re.DOTALL)
+
+
+def fill_marked(text: str, out_dir) -> str:
+    """``text`` with each block between ``<!-- record: NAME -->`` and ``<!-- /record -->`` replaced by the recorded
+    file NAME (so README shows the record's own tables, never a hand copy); a NAME not recorded is an error."""
+    def block(m: re.Match) -> str:
+        f = Path(out_dir, m["name"])
+        if not f.is_file():
+            raise FileNotFoundError(f"a record block names {m['name']}, which is not in {out_dir}")
+        return m.group(1) + f.read_text().strip() + "\n" + m.group(3)
+    return MARKED.sub(block, text)
+
+
+def write(config: dict, results, out_dir, command: str, commit: str | None = None, readme=None) -> list[Path]:
     """Copy the run's tables into ``out_dir`` (replacing what was there), write its rule times where the run's
-    logs are beside ``results`` (its workdir), and its README.md; ``commit`` defaults to that of the workdir."""
+    logs are beside ``results`` (its workdir), and its README.md; ``commit`` defaults to that of the workdir.
+    ``readme``: a file whose record blocks (fill_marked) are refilled from the new record."""
     files = recorded_files(config, Path(results, "tables"))
     workdir = Path(results).resolve().parent
     commit = commit or commit_of(workdir)
@@ -66,4 +82,8 @@ def write(config: dict, results, out_dir, command: str, commit: str | None = Non
                if rule_times else ""))
     with atomic_path(out / "README.md") as tmp:
         tmp.write_text(note)
+    if readme is not None:
+        text = fill_marked(Path(readme).read_text(), out)
+        with atomic_path(readme) as tmp:
+            tmp.write_text(text)
     return [out / f.name for f in files]
