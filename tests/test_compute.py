@@ -1,9 +1,11 @@
 """The compute table: benchmark files charged to the experiment, store or table that built them."""
 
 import os
+import re
 
 import polars as pl
 import pytest
+from conftest import REPO
 
 from ocpipe.study import compute
 
@@ -123,5 +125,23 @@ def test_record_blocks_show_the_recorded_files_and_name_a_missing_one(tmp_path):
     assert record.fill_marked(empty, tmp_path) == (
         "<!-- record: table5_1.md -->\n| a |\n|---|\n| 1 |\n<!-- /record -->\n")
     assert record.fill_marked(record.fill_marked(text, tmp_path), tmp_path) == record.fill_marked(text, tmp_path)
-    with pytest.raises(FileNotFoundError, match="findings.md"):
-        record.fill_marked("<!-- record: findings.md -->\n\n<!-- /record -->", tmp_path)
+    (tmp_path / "findings.md").write_text("| f |\n")
+    two = ("<!-- record: table5_1.md -->\n<!-- /record -->\ntext between\n"
+           "<!-- record: findings.md -->\n<!-- /record -->\n")
+    assert record.fill_marked(two, tmp_path) == (  # an empty block ends at its own end marker, not the next one's
+        "<!-- record: table5_1.md -->\n| a |\n|---|\n| 1 |\n<!-- /record -->\ntext between\n"
+        "<!-- record: findings.md -->\n| f |\n<!-- /record -->\n")
+    with pytest.raises(FileNotFoundError, match="table5_9.md"):
+        record.fill_marked("<!-- record: table5_9.md -->\n\n<!-- /record -->", tmp_path)
+
+
+def test_the_committed_record_is_a_whole_run_of_a_named_commit_and_readme_shows_it(default_config):
+    from ocpipe.study import record
+
+    rec = REPO / "docs" / "results"
+    record.recorded_files(default_config, rec)  # every table, the findings and the compute table, csv and md
+    assert re.search(r"Commit `[0-9a-f]{40}`", (rec / "README.md").read_text())
+    assert pl.read_csv(rec / "findings.csv").height == 12
+    readme = (REPO / "README.md").read_text()
+    assert "<!-- record: table5_1.md -->" in readme and "<!-- record: findings.md -->" in readme
+    assert record.fill_marked(readme, rec) == readme  # README's Results blocks are the record's own files

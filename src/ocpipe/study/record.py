@@ -37,7 +37,8 @@ def commit_of(repo) -> str:
     return f"{head.stdout.strip()} (with uncommitted changes)" if dirty else head.stdout.strip()
 
 
-MARKED = re.compile(r"(<!-- record: (?P<name>[\w.]+) -->\n)(?:.*?\n)?(<!-- /record -->)", re.DOTALL)
+# a block's body: whole lines, none of them a marker, so an empty block never swallows the next one
+MARKED = re.compile(r"(<!-- record: (?P<name>[\w.]+) -->\n)(?:(?!<!-- /?record)[^\n]*\n)*(<!-- /record -->)")
 
 
 def fill_marked(text: str, out_dir) -> str:
