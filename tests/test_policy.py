@@ -54,8 +54,11 @@ def test_the_current_action_state_is_the_full_decoders_last_action_token(layers,
     fast = model.current_action_state(seq)
     torch.testing.assert_close(fast, full, rtol=0, atol=1e-5)
     grads = [torch.autograd.grad(out.square().sum(), list(model.decoder.parameters())) for out in (full, fast)]
+    # the two paths sum in another order; on two CPUs their round-off reached 0.1 % of the largest gradient entry,
+    # while a wrong row would be off by about that entry itself
+    scale = max(float(a.abs().max()) for a in grads[0])
     for a, b in zip(*grads):
-        torch.testing.assert_close(b, a, rtol=1e-4, atol=1e-5)
+        torch.testing.assert_close(b, a, rtol=1e-4, atol=5e-3 * scale)
 
 
 VARIANTS = [dict(zip(("goal", "proprio", "visual_head", "gripper", "action_head", "cameras"), v)) for v in

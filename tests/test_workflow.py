@@ -510,15 +510,26 @@ def test_the_policy_sees_the_true_object_pose_under_the_diagnostic_filter(tiny_r
     assert not np.allclose(est, seen)  # the read-out's own estimate is logged beside it
 
 
+def never_grasped(text: str) -> str:
+    """Table 5.2's csv with its No Grasp and Idle columns summed into one: episodes that never held the cube."""
+    table = pl.read_csv(text.encode())
+    merged = table.with_columns(never_grasped=pl.col("No Grasp") + pl.col("Idle"))
+    return merged.drop("No Grasp", "No Grasp %", "Idle", "Idle %").write_csv()
+
+
 def test_tiny_run_tables_match_the_committed_ones(tiny_run):
-    """The tiny run's tables, byte for byte, against tests/expected/tiny/: a refactor that changes what any stage
-    computes changes a table. When a change is meant to alter results, copy the new tables from the tiny run's
-    results/tables/ over the committed ones. The goldens are those of the machine kind CI runs on: another CPU can
-    give other floats, and a 2-epoch policy's gripper output sits near its threshold, so Pure Visual's four tiny
-    episodes were Idle on one machine and No Grasp on another (docs/journal.md, 2026-12-02)."""
+    """The tiny run's tables against tests/expected/tiny/: a refactor that changes what any stage computes changes a
+    table. When a change is meant to alter results, copy the new tables from the tiny run's results/tables/ over the
+    committed ones. Byte for byte, but for one split: a 2-epoch policy's gripper output sits near its threshold, and
+    the CPU's float kernels decide on which side, so Pure Visual's four tiny episodes (which never grasp) split
+    between No Grasp and Idle as 4/0, 3/1 and 2/2 on three machines (and on one machine under its AVX-512 and its
+    AVX2 kernels; docs/journal.md, 2026-12-04). Table 5.2 is therefore compared with those two summed."""
     expected = REPO / "tests" / "expected" / "tiny"
     names = sorted(p.name for p in expected.glob("*.csv"))
     assert names == ["table5_1.csv", "table5_2.csv", "table5_6.csv"]
     got = {name: (tiny_run / "results" / "tables" / name).read_text() for name in names}
-    differ = {name: text for name, text in got.items() if text != (expected / name).read_text()}
+    want = {name: (expected / name).read_text() for name in names}
+    for tables in (got, want):
+        tables["table5_2.csv"] = never_grasped(tables["table5_2.csv"])
+    differ = {name: text for name, text in got.items() if text != want[name]}
     assert not differ, "differ from tests/expected/tiny/:\n" + "\n".join(f"{n}:\n{t}" for n, t in differ.items())
