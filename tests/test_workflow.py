@@ -522,8 +522,8 @@ def test_tiny_run_tables_match_the_committed_ones(tiny_run):
     table. When a change is meant to alter results, copy the new tables from the tiny run's results/tables/ over the
     committed ones. Byte for byte, but for one split: a 2-epoch policy's gripper output sits near its threshold, and
     the CPU's float kernels decide on which side, so Pure Visual's four tiny episodes (which never grasp) split
-    between No Grasp and Idle as 4/0, 3/1 and 2/2 on three machines (and on one machine under its AVX-512 and its
-    AVX2 kernels; docs/journal.md, 2026-12-04). Table 5.2 is therefore compared with those two summed."""
+    between No Grasp and Idle as 4/0 on one machine, 3/1 on another and 2/2 on that other with torch's kernels pinned
+    to AVX2 (docs/journal.md, 2026-12-04). Table 5.2 is therefore compared with those two summed."""
     expected = REPO / "tests" / "expected" / "tiny"
     names = sorted(p.name for p in expected.glob("*.csv"))
     assert names == ["table5_1.csv", "table5_2.csv", "table5_6.csv"]
