@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import zarr
 
 from ocpipe.sim import projection
 
@@ -27,6 +26,8 @@ def _put(group, name, data, chunks=None):
 
 
 def write_stores(root: Path, lengths=(30, 25, 40), C=2, K=7, D=16, chunk=32, seed=0) -> tuple[Path, Path]:
+    import zarr  # here, so policy_settings needs only numpy (bench/check_cuda.py runs where zarr is not)
+
     rng = np.random.default_rng(seed)
     N = sum(lengths)
     offsets = np.concatenate([[0], np.cumsum(lengths)]).tolist()

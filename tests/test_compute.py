@@ -6,6 +6,7 @@ import re
 import polars as pl
 import pytest
 from conftest import REPO
+from tolerances import reduction_atol
 
 from ocpipe.study import compute
 
@@ -57,23 +58,31 @@ def test_tables_add_what_they_build_first_and_sum_to_the_run(default_config, ben
     jobs = compute.read_jobs(bench)
     totals = compute.charged(jobs).group_by("kind", "what").agg(pl.col("job_min", "core_min").sum())
     adds = dict(compute.per_table(default_config, totals).select("table", "core_min").iter_rows())
+    # every job's CPU seconds are a multiple of 6, so every figure below is a whole number of tenths of a minute
     # table 5.1 builds the stores, the encoder, pure_visual and goal2d (state_control and goal3d never ran here)
+    # exact: per_table rounds to 0.1 min; approx only because a tenth has no finite binary form
     assert adds["table5_1"] == pytest.approx(1 + 3 + 10 + 3 + (5 + 1 + 6) + (4 + 1 + 6) + 0.1)
     assert adds["table5_2"] == 0.0  # the same rows: nothing new to build
-    assert adds["table5_9"] == pytest.approx(3 + 0.1)  # weight_time's training and the table itself
+    # exact: weight_time's training and the table itself, in tenths; approx only because 0.1 is not binary
+    assert adds["table5_9"] == pytest.approx(3 + 0.1)
+    # exact: whole tenths on both sides (2592 s = 43.2 min); approx only because tenths are not binary
     assert sum(adds.values()) == pytest.approx(jobs["cpu_seconds"].sum() / 60)
 
 
 def test_wall_time_spans_first_start_to_last_end(bench):
-    assert compute.wall_minutes(compute.read_jobs(bench)) == pytest.approx(2000 / 60, abs=0.05)
+    # exact: the span is 2000.0 s of whole-second mtimes, and the product rounds it to 0.1 min with this same round
+    assert compute.wall_minutes(compute.read_jobs(bench)) == round(2000 / 60, 1)
 
 
 def test_write_names_the_run_and_an_empty_folder_is_an_error(default_config, bench, tmp_path):
     compute.write(default_config, bench, tmp_path / "c.csv", tmp_path / "c.md")
     text = (tmp_path / "c.md").read_text()
     assert "| goal2d |" in text and "wall time 33.3 min" in text
-    assert pl.read_csv(tmp_path / "c.csv")["core_min"].sum() == pytest.approx(
-        compute.read_jobs(bench)["cpu_seconds"].sum() / 60, abs=0.2)
+    core = pl.read_csv(tmp_path / "c.csv")["core_min"]
+    # derived: each row is a whole tenth (CPU seconds in multiples of 6) written to 4 decimals, so the CSV sum differs
+    # from the total only by float64 round-off of a sum of len(core) terms of at most max(core) minutes
+    assert core.sum() == pytest.approx(compute.read_jobs(bench)["cpu_seconds"].sum() / 60,
+                                       abs=reduction_atol(len(core), core.max()))
     with pytest.raises(FileNotFoundError, match="no benchmark files"):
         compute.read_jobs(tmp_path / "nothing")
 
@@ -92,7 +101,7 @@ def test_record_copies_a_whole_runs_tables_and_refuses_part_of_one(default_confi
     (out / "table5_99.csv").write_text("stale")
     files = record.write(default_config, tmp_path / "results", out, "time snakemake --cores 2 all", "abc123")
     assert len(files) == 2 * len(names)
-    assert (out / "table5_3.csv").read_text() == "table5_3,1\n"
+    assert (out / "table5_3.csv").read_text() == "table5_3,1\n"  # exact: a copied file
     assert not (out / "table5_99.csv").exists()  # a table of an older run does not survive into this record
     assert "Commit `abc123`" in (out / "README.md").read_text()
     assert not (out / "rule_times.csv").exists()  # no run log beside the results: no rule times
@@ -102,6 +111,7 @@ def test_record_copies_a_whole_runs_tables_and_refuses_part_of_one(default_confi
                    "    benchmark: results/benchmarks/train/goal2d.tsv\n")
     _bench(tmp_path / "results" / "benchmarks", "train/goal2d.tsv", 300, 290, 1_000_000.0)
     record.write(default_config, tmp_path / "results", out, "time snakemake --cores 2 all", "abc123")
+    # exact: one job's integer CPU seconds, its median and sum are that number
     assert (out / "rule_times.csv").read_text() == "rule,jobs,median_cpu_seconds,cpu_seconds\ntrain,1,290.0,290.0\n"
     assert "rule_times.csv" in (out / "README.md").read_text()
     (tables / "table5_7.md").unlink()

@@ -104,6 +104,6 @@ def test_cli_check_flags_a_stale_file(tmp_path, monkeypatch, capsys):
     assert cli.main(["config-docs", "--check"]) == 1
     assert "config/README.md is out of date: run `ocpipe config-docs`" in capsys.readouterr().err
     assert cli.main(["config-docs"]) == 0
-    assert stale.read_text() == config_docs.render(*_inputs())
+    assert stale.read_text() == config_docs.render(*_inputs())  # exact: the same deterministic text rendering
     assert cli.main(["config-docs", "--check"]) == 0
     assert not list(tmp_path.glob(".tmp-*"))  # written through a temporary sibling, renamed into place

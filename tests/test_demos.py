@@ -68,8 +68,9 @@ def test_import_converts_relative_joint_control_to_absolute_targets(tmp_path, de
     with h5py.File(out) as f:
         a = f["traj_0/actions"][()]
     # absolute target of step t = arm joints of recorded state t+1 (qpos[j] = j + t + 1); gripper kept
-    np.testing.assert_allclose(a[:, :7], np.arange(7)[None] + np.arange(1, len(a) + 1)[:, None])
-    np.testing.assert_allclose(a[:, 7], -1)
+    # exact: the import copies float32 whole numbers out of the recorded states and actions, no arithmetic
+    np.testing.assert_array_equal(a[:, :7], np.arange(7)[None] + np.arange(1, len(a) + 1)[:, None])
+    np.testing.assert_array_equal(a[:, 7], -1)  # exact: the gripper command copied as recorded
     assert all(e["control_mode"] == "pd_joint_pos" for e in episodes(out.with_suffix(".json")))
 
 
@@ -102,4 +103,5 @@ def test_merge_concatenates_shards_with_fresh_ids(tmp_path):
     eps = episodes(tmp_path / "m.json")
     assert [e["episode_id"] for e in eps] == [0, 1, 2, 3, 4]
     assert [e["episode_seed"] for e in eps] == [0, 1, 4, 5, 6]
+    # exact: integer counts and seeds
     assert report["episodes"] == 5 and json.loads((tmp_path / "m.report.json").read_text())["seed_max"] == 6

@@ -1,6 +1,7 @@
 import numpy as np
 import polars as pl
 import pytest
+from tolerances import EPS32
 
 from ocpipe.config.errors import ConfigError
 from ocpipe.config.validate import validate
@@ -156,6 +157,7 @@ def episodes(run, successes, steps_, trivial=None):
 
 def test_trivial_successes_count_in_neither_numerator_nor_total():
     eps = episodes(0, [True, True, False, False], [5, 50, 100, 100], trivial=[True, False, False, False])
+    # exact: one division of integer counts, 1 / 3 on both sides; approx only because 1/3 has no finite binary form
     assert closed_loop.success_rate(eps) == pytest.approx(1 / 3)
 
 
@@ -169,8 +171,9 @@ def test_table5_1_from_known_rows():
     )
     t = tables.build(registry.TABLES["table5_1"].columns, [tables.Row("2D", {}, {"stability": runs})])
     row = t.row(0, named=True)
-    assert row["SR mean"] == pytest.approx(0.5)  # runs: 0.5, 1.0, 0.0
-    assert row["SR std"] == pytest.approx(0.5)  # sample std of (0.5, 1, 0)
+    assert row["SR mean"] == pytest.approx(0.5)  # exact: runs 0.5, 1.0, 0.0 are dyadic, so their mean is exact
+    assert row["SR std"] == pytest.approx(0.5)  # exact: sample std of (0.5, 1, 0) is sqrt(0.5 / 2), all dyadic
+    # exact: integer run means 70, 50, 100, summed exactly, then one division by 3, as here; approx only for the /3
     assert row["Episode length mean"] == pytest.approx((70 + 50 + 100) / 3)
     assert row["Runs"] == 3 and row["Trivial excluded"] == 1
 
@@ -181,7 +184,7 @@ def test_table5_2_counts_and_percentages(tmp_path):
     )
     t = tables.table5_2({"Pure": classes}).row(0, named=True)
     assert (t["Success"], t["Drop"], t["No Grasp"], t["Near Miss"], t["Total"]) == (1, 2, 1, 0, 4)
-    assert t["Drop %"] == pytest.approx(50.0)
+    assert t["Drop %"] == pytest.approx(50.0)  # exact: 100 * 2 / 4 on integers
 
 
 def sweep_files(tmp_path, results):
@@ -202,7 +205,9 @@ def test_best_checkpoint_takes_the_sweep_leader_only_where_fisher_resolves_it(tm
     # 3/6 against 1/6 (one-sided p = 0.27): the lower open-loop error decides
     best = jobs.best_checkpoint(sweep_files(tmp_path, ((8, 3, 6, 1.0), (16, 1, 6, 1.0))), log)
     assert (best["epoch"], best["chosen_by"]) == (16, "open-loop error")
-    assert best["sweep_p"] == pytest.approx(0.2727, abs=1e-3)
+    # derived: p = P(X >= 3), X hypergeometric = (224 + 28) / 924 = 3/11, two pmf terms scipy evaluates in float64
+    # (error ~1e-15); approx's 1e-6 default covers it and is far below the gap to a one-count change of p (> 0.1)
+    assert best["sweep_p"] == pytest.approx(3 / 11)
     sweep = {r["checkpoint"]: r for r in best["sweep"]}
     assert (sweep[8]["successes"], sweep[8]["episodes"], sweep[16]["val_joint_err_rad"]) == (3, 6, 0.0108)
     # 15/20 against 3/20 resolves it
@@ -267,13 +272,14 @@ def test_temporal_ensemble_weights_older_chunks_more_and_votes_the_gripper():
     new[:, 7] = -1.0
     chunks = deque([(0, old), (2, new)])
     # step 1: only the old chunk covers it
-    np.testing.assert_array_equal(ensemble_action(chunks, 1, 0.5), old[1])
+    np.testing.assert_array_equal(ensemble_action(chunks, 1, 0.5), old[1])  # exact: one chunk at weight exp(0) = 1
     # step 2: both; joints at exp(-0.5) / (1 + exp(-0.5)) of the way to the new chunk, the old gripper vote wins
     a = ensemble_action(chunks, 2, 0.5)
-    np.testing.assert_allclose(a[:7], np.exp(-0.5) / (1 + np.exp(-0.5)), rtol=1e-6)
+    # derived: the product's float64 weighted mean (4 ops, ~1e-16) is cast to float32: at most half a float32 ulp
+    np.testing.assert_allclose(a[:7], np.exp(-0.5) / (1 + np.exp(-0.5)), rtol=EPS32)
     assert a[7] == 1.0
     # step 5: the old chunk (4 steps from 0) no longer covers it
-    np.testing.assert_array_equal(ensemble_action(chunks, 5, 0.5), new[3])
+    np.testing.assert_array_equal(ensemble_action(chunks, 5, 0.5), new[3])  # exact: one chunk at weight 1
 
 
 @pytest.mark.parametrize("exp, reads_labels, expected", [

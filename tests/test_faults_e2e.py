@@ -283,6 +283,7 @@ def differences(a: Path, b: Path, where: str) -> list[str]:
     if a.suffix == ".parquet":
         x, y = (pl.read_parquet(p).drop(TIMING_KEYS, strict=False) for p in (a, b))
         try:
+            # one-cpu: both runs trained and evaluated on this machine; float kernels decide the last bits elsewhere
             assert_frame_equal(x, y, check_exact=True)
         except AssertionError as err:
             return [f"{where}: {err}"]
@@ -295,10 +296,12 @@ def differences(a: Path, b: Path, where: str) -> list[str]:
         return _tree_differences(torch.load(a, weights_only=False), torch.load(b, weights_only=False), where)
     if a.suffix == ".h5":
         return _h5_differences(a, b, where)
+    # one-cpu: two builds on this machine, byte for byte (another CPU's float kernels may round the numbers apart)
     return [] if a.read_bytes() == b.read_bytes() else [f"{where}: the bytes differ"]
 
 
 def _arrays_differ(x: np.ndarray, y: np.ndarray) -> bool:
+    # one-cpu: arrays of the killed-and-rerun build against the uninterrupted one, both computed on this machine
     return x.shape != y.shape or x.dtype != y.dtype or not np.array_equal(x, y, equal_nan=x.dtype.kind in "fc")
 
 
@@ -320,6 +323,7 @@ def _tree_differences(a, b, where: str) -> list[str]:
         return [f"{where}: arrays differ"] if _arrays_differ(a, b) else []
     if isinstance(a, float) and isinstance(b, float) and a != a and b != b:
         return []
+    # one-cpu: the two runs' scalars (losses, rates from JSON and checkpoints) compared exactly, as their arrays are
     return [] if type(a) is type(b) and a == b else [f"{where}: {a!r} vs {b!r}"]
 
 

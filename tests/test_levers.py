@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 from policy_stores import policy_settings, write_stores
+from tolerances import EPS32, gamma, mean_atol
 
 from ocpipe.encoders.state import state_tokens, yaw
 from ocpipe.policy import data
@@ -19,14 +20,20 @@ def _quat_z(angle):
 
 
 def test_state_tokens_encode_yaw_with_the_cubes_quarter_turn_symmetry():
+    # derived: cos, sin, 4 products and an arctan2 in float64 (<= ~1e-15); approx's 1e-6 default covers it and is
+    # far below a wrong yaw (the symmetry under test shifts it by pi/2)
     assert yaw(_quat_z(0.3)) == pytest.approx(0.3)
     a, b = state_tokens(np.zeros(3), _quat_z(0.3)), state_tokens(np.zeros(3), _quat_z(0.3 + np.pi / 2))
     assert a.shape == (1, 1, 5)
-    np.testing.assert_allclose(a, b, atol=1e-6)
+    # derived: float32 tokens of size <= 1, computed in float64 (~1e-15 apart): the cast may round the two one
+    # float32 ulp apart, <= EPS32
+    np.testing.assert_allclose(a, b, rtol=0, atol=EPS32)
     c = state_tokens(np.array([0.1, -0.2, 0.02]), _quat_z(np.pi / 8))  # 4 * 22.5 deg = 90 deg
-    np.testing.assert_allclose(c[0, 0], [0.1, -0.2, 0.02, 1.0, 0.0], atol=1e-6)
+    # derived: float32 tokens of size <= 1 against decimal literals: half a float32 ulp plus float64 round-off
+    np.testing.assert_allclose(c[0, 0], [0.1, -0.2, 0.02, 1.0, 0.0], rtol=0, atol=EPS32)
     d = state_tokens(np.array([0.1, -0.2, 0.02]), _quat_z(np.pi / 8), tcp_pos=np.array([0.0, 0.1, 0.2]))
-    np.testing.assert_allclose(d[0, 0], [0.1, -0.2, 0.02, 1.0, 0.0, 0.1, -0.3, -0.18], atol=1e-6)
+    # derived: as above, the offsets one float64 subtraction more
+    np.testing.assert_allclose(d[0, 0], [0.1, -0.2, 0.02, 1.0, 0.0, 0.1, -0.3, -0.18], rtol=0, atol=EPS32)
 
 
 def test_split_holds_out_the_last_episodes():
@@ -48,8 +55,15 @@ def test_aux_targets_and_token_norm_reach_the_model(tmp_path):
     model, _, _ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0004.pt")
     # the token statistics are the training frames' (pooled over cameras and slots), kept in the checkpoint
     x = np.asarray(d.tokens[: d.train_frames[-1] + 1], np.float64).reshape(-1, 16)
-    np.testing.assert_allclose(model.normalizer.tokens.mean.numpy(), x.mean(0), rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(model.normalizer.aux.mean.numpy(), d.labels.aux[d.train_frames].mean(0), atol=1e-6)
+    # derived: the product too takes the float64 mean of these len(x) float16 tokens (two summation orders differ by
+    # at most mean_atol) and keeps it in a float32 buffer (half a float32 ulp, within rtol EPS32)
+    np.testing.assert_allclose(model.normalizer.tokens.mean.numpy(), x.mean(0), rtol=EPS32,
+                               atol=mean_atol(len(x), np.abs(x).max()))
+    aux = d.labels.aux[d.train_frames]
+    # derived: the product averages the float32 labels in float32: a float32 sum of len(aux) terms of size <= max|aux|
+    # (mean_atol at EPS32), against their float64 mean here
+    np.testing.assert_allclose(model.normalizer.aux.mean.numpy(), aux.astype(np.float64).mean(0), rtol=0,
+                               atol=mean_atol(len(aux), np.abs(aux).max(), eps=EPS32))
     out = model(batch["tokens"], batch["proprio"], batch["goal"])
     assert out.actions.shape == (5, 4, 8) and out.object_pos.shape == (5, 3) and out.readout is None
 
@@ -74,4 +88,8 @@ def test_openloop_error_is_zero_for_a_policy_that_returns_the_expert_chunk(tmp_p
             return type("Out", (), {"actions": model.normalizer.actions_to_model(want, qpos[frames_])})
 
     err = openloop_error(Oracle(), d, settings, "cpu")
-    assert err["val_joint_err_rad"] == pytest.approx(0.0, abs=1e-5) and err["val_gripper_agree"] == 1.0
+    M = float(np.abs(d.labels.action[:, :7]).max() + np.abs(d.labels.qpos[:, :7]).max())  # largest target + joint
+    # derived: the float32 round trip (a - q - m) / s * s + m + q: 6 float32 ops on values <= 2M, so each joint is
+    # off by at most gamma_6 * 2M, and so is their mean
+    assert err["val_joint_err_rad"] == pytest.approx(0.0, abs=gamma(6, EPS32) * 2 * M)
+    assert err["val_gripper_agree"] == 1.0

@@ -42,6 +42,7 @@ def test_decimated_urdf_is_reproducible(built, tmp_path):
     root, urdf = built
     again = lowpoly.decimated_urdf(_panda_urdf(), 0.1, tmp_path)
     assert again.parent.name == urdf.parent.name  # same hash: the cache key does not depend on where it is built
+    # one-cpu: two decimations on this machine, byte for byte (the simplifier's float kernels decide the vertices)
     assert _files(again.parent) == _files(urdf.parent)
     assert lowpoly.decimated_urdf(_panda_urdf(), 0.1, root) == urdf  # cached: returned, not rebuilt
     assert not list(root.glob(".build-*"))  # no temp dirs left behind
@@ -64,6 +65,7 @@ def test_collision_meshes_are_the_originals_and_the_srdf_is_copied(built):
         assert Path(f).is_relative_to(_panda_urdf().parent)
     for f in (m.get("filename") for m in lowpoly._visual_meshes(root)):
         assert (urdf.parent / f).is_file(), f
+    # exact: a copied file
     assert (urdf.parent / "panda_v2.srdf").read_bytes() == _panda_urdf().with_suffix(".srdf").read_bytes()
 
 
@@ -109,8 +111,10 @@ def test_lowpoly_env_has_the_same_physics_and_segmentation(default_config, cache
             obs, r_low, *_ = low_env.step(action)
             a, b = envs.task_readouts(plain_env), envs.task_readouts(low_env)
             for k in a:
+                # one-cpu: the same PhysX steps on the same collision meshes and actions, both envs in this process
+                # (only the visual meshes differ, physics never reads them); the bits follow the CPU's kernels
                 np.testing.assert_array_equal(a[k], b[k], err_msg=k)
-            assert torch.equal(r_plain, r_low)
+            assert torch.equal(r_plain, r_low)  # one-cpu: the rewards of those same steps
         seg = obs["sensor_data"]["base_camera"]["segmentation"]
         assert set(torch.unique(seg).tolist()) <= set(u_low.segmentation_id_map) | {0}
     finally:

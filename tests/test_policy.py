@@ -5,6 +5,7 @@ import polars as pl
 import pytest
 import torch
 from policy_stores import policy_settings, write_stores
+from tolerances import EPS32, gamma, mean_atol, reduction_atol
 
 from ocpipe.policy import data, observation
 from ocpipe.policy.checkpoint import load_policy
@@ -16,13 +17,20 @@ from ocpipe.policy.weighting import loss_weights
 from ocpipe.policy.windows import ChunkWindowLoader, Labels, action_frames, progress, window_frames
 
 
-def inputs(policy, B=3, K=7, D=16, seed=0):
+def inputs(policy, B=3, K=7, D=16, seed=0, dtype=torch.float32):
     g = torch.Generator().manual_seed(seed)
     T, C = policy["window"], len(policy["cameras"])
     P = PROPRIO_DIMS[policy["proprio"]]
     G = {"none": 0, "2d": 4, "3d": 3}[policy["goal"]]
-    return (torch.randn(B, T, C, K, D, generator=g), torch.randn(B, T, P, generator=g),
-            torch.randn(B, T, G, generator=g))
+    return (torch.randn(B, T, C, K, D, generator=g, dtype=dtype), torch.randn(B, T, P, generator=g, dtype=dtype),
+            torch.randn(B, T, G, generator=g, dtype=dtype))
+
+
+def decoder_atol(model: SequencePolicy, seq: torch.Tensor, magnitude: float) -> float:
+    """Two orders of the decoder's float64 sums differ by at most this: each layer chains about six reductions
+    (two norms, scores, softmax, values, feed-forward) over at most max(4 W, L) terms."""
+    W, L = seq.shape[-1], seq.shape[1]
+    return reduction_atol(max(4 * W, L), magnitude, depth=6 * len(model.decoder.layers) + 1)
 
 
 @pytest.mark.parametrize("visual_head,fusion", [("tokens", "concat"), ("tokens", "cross_attention"),
@@ -31,15 +39,18 @@ def inputs(policy, B=3, K=7, D=16, seed=0):
 def test_changing_a_future_timestep_leaves_earlier_outputs_unchanged(visual_head, fusion):
     policy = policy_settings(window=5, visual_head=visual_head, fusion=fusion)
     torch.manual_seed(0)
-    model = SequencePolicy(policy, 7, 16).eval()
-    tokens, proprio, goal = inputs(policy)
-    before = model.action_states(model.tokens(tokens, proprio, goal)[0])  # (B, T, W): every step's action token
+    model = SequencePolicy(policy, 7, 16).eval().double()
+    tokens, proprio, goal = inputs(policy, dtype=torch.float64)
+    seq = model.tokens(tokens, proprio, goal)[0]
+    before = model.action_states(seq)  # (B, T, W): every step's action token
     tokens[:, 3] += 1.0
     proprio[:, 3] += 1.0
     goal[:, 3] += 1.0
     after = model.action_states(model.tokens(tokens, proprio, goal)[0])
-    torch.testing.assert_close(after[:, :3], before[:, :3], rtol=0, atol=1e-6)
-    assert not torch.allclose(after[:, 3], before[:, 3])
+    atol = decoder_atol(model, seq, float(seq.detach().abs().max()))
+    # derived: float64; the masked later tokens add exact zeros, so at most the sums' reordering differs
+    torch.testing.assert_close(after[:, :3], before[:, :3], rtol=0, atol=atol)
+    assert not torch.allclose(after[:, 3], before[:, 3], rtol=0, atol=atol)  # derived: the change is O(1)
 
 
 @pytest.mark.parametrize("layers,window", [(1, 1), (2, 5), (3, 4)])
@@ -48,17 +59,21 @@ def test_the_current_action_state_is_the_full_decoders_last_action_token(layers,
     decoder gives, and its gradients the same."""
     policy = policy_settings(window=window, layers=layers, goal="2d", cameras=[0, 1])
     torch.manual_seed(0)
-    model = SequencePolicy(policy, 7, 16).eval()
-    seq = model.tokens(*inputs(policy))[0]
+    model = SequencePolicy(policy, 7, 16).eval().double()
+    seq = model.tokens(*inputs(policy, dtype=torch.float64))[0]
     full = model.action_states(seq)[:, -1]
     fast = model.current_action_state(seq)
-    torch.testing.assert_close(fast, full, rtol=0, atol=1e-5)
+    # derived: float64, the two paths sum in another order; a wrong row would be off by O(1)
+    torch.testing.assert_close(fast, full, rtol=0, atol=decoder_atol(model, seq, float(seq.detach().abs().max())))
     grads = [torch.autograd.grad(out.square().sum(), list(model.decoder.parameters())) for out in (full, fast)]
-    # the two paths sum in another order; on two CPUs their round-off reached 0.1 % of the largest gradient entry,
-    # while a wrong row would be off by about that entry itself
-    scale = max(float(a.abs().max()) for a in grads[0])
+    # a weight's gradient sums, over the B x L rows, an activation (of the sequence's size, the norms keep it there)
+    # times an upstream gradient (of the size of the loss's own, 2 |out|), after the backward pass has chained as
+    # many reductions again as the forward one
+    B, L, W = seq.shape
+    scale = float(seq.detach().abs().max()) * 2 * float(full.detach().abs().max())
+    grad_atol = reduction_atol(max(4 * W, B * L), scale, depth=2 * (6 * layers + 1))
     for a, b in zip(*grads):
-        torch.testing.assert_close(b, a, rtol=1e-4, atol=5e-3 * scale)
+        torch.testing.assert_close(b, a, rtol=0, atol=grad_atol)  # derived: as above
 
 
 VARIANTS = [dict(zip(("goal", "proprio", "visual_head", "gripper", "action_head", "cameras"), v)) for v in
@@ -110,12 +125,14 @@ def test_gripper_is_a_hard_step_and_joints_are_denormalized():
     pred[0, :, 7] = torch.tensor([0.3, -0.2, 0.0])
     out = norm.actions_from_model(pred, None)[0].numpy()
     assert out[:, 7].tolist() == [1.0, -1.0, -1.0]
-    np.testing.assert_allclose(out[:, 0], 2.0)
-    np.testing.assert_allclose(out[:, 1:7], np.tile(np.arange(1, 7) * 0.1, (3, 1)), rtol=1e-6)
+    np.testing.assert_array_equal(out[:, 0], 2.0)  # exact: 1 x 2 + 0 in float32
+    # derived: 0 x 2 + the float32 mean, which holds 0.1 k rounded once (<= eps32 / 2 relative)
+    np.testing.assert_allclose(out[:, 1:7], np.tile(np.arange(1, 7) * 0.1, (3, 1)), rtol=EPS32)
     raw = np.array([[0.1] * 7 + [1.0], [0.3] * 7 + [-1.0]], np.float32)
     fit(norm, action=raw)
     assert norm.action.mean[7] == 0 and norm.action.std[7] == 1  # gripper untouched
-    np.testing.assert_allclose(norm.actions_to_model(torch.from_numpy(raw)[:, None], None)[:, 0, 7], [1.0, -1.0])
+    # exact: the gripper passes through untouched
+    np.testing.assert_array_equal(norm.actions_to_model(torch.from_numpy(raw)[:, None], None)[:, 0, 7], [1.0, -1.0])
 
 
 def test_residual_targets_are_relative_to_the_current_joints_and_come_back_exactly():
@@ -126,21 +143,31 @@ def test_residual_targets_are_relative_to_the_current_joints_and_come_back_exact
     norm.fit(PolicySettings.of(policy_settings(joint_targets="residual")), proprio=qpos[:, :7], goal=np.zeros((50, 4)),
              action=action, qpos_at=qpos, pose=None, aux=None)
     assert norm.action.mean.shape == (4, 8)
-    z = norm.actions_to_model(torch.from_numpy(action), torch.from_numpy(qpos))
-    np.testing.assert_allclose(z[..., :7].mean((0,)).numpy(), 0.0, atol=1e-5)  # per (horizon step, joint)
-    back = norm.actions_from_model(z, torch.from_numpy(qpos)).numpy()
-    np.testing.assert_allclose(back, action, atol=1e-5)
+    # float64 inputs: the float32 statistics promote exactly, so the round trip is float64 arithmetic
+    action64, qpos64 = torch.from_numpy(action.astype(np.float64)), torch.from_numpy(qpos.astype(np.float64))
+    z = norm.actions_to_model(action64, qpos64)
+    residual = action[..., :7] - qpos[:, None, :7]
+    std = norm.action.std[..., :7].numpy()
+    atol = (mean_atol(50, np.abs(residual).max(), eps=EPS32) / std.min() + mean_atol(50, float(z.abs().max())))
+    # derived: the statistics were taken in float32 over 50 rows, and the mean of z over 50 rows in float64
+    np.testing.assert_allclose(z[..., :7].mean((0,)).numpy(), 0.0, atol=atol)  # per (horizon step, joint)
+    back = norm.actions_from_model(z, qpos64).numpy()
+    # derived: subtract, divide, multiply, add back: four float64 operations on values this large
+    np.testing.assert_allclose(back, action, rtol=0, atol=reduction_atol(4, float(np.abs(action).max() + 10)))
 
 
 def test_loss_weights_follow_the_spec_numbers():
     p = torch.tensor([0.0, 0.35, 0.39, 0.4, 0.85, 1.0])
     u = loss_weights("u_shaped", p)[:, 0]
+    # derived: float32 weights near 2 (round-off ~2.4e-7); 0.01 still tells the peak (2) from its tails
     assert u[1] == pytest.approx(2.0, abs=0.01) and u[4] == pytest.approx(2.0, abs=0.01)
+    # derived: as above; 1e-4 tells a sigma of 0.15 (u = 1.0657) from 0.14 (1.0439) or 0.16 (1.0914)
     assert u[0] == pytest.approx(1 + np.exp(-0.5 * (0.35 / 0.15) ** 2), abs=1e-4)  # sigma 0.15
     d = loss_weights("dim_decoupled", p)
     assert d[2].tolist() == [1.0] * 7 + [3.0] and d[3].tolist() == [3.0] * 7 + [1.0]
     assert (loss_weights("time", p, epoch=99, warmup_epochs=100) == 1).all()
-    np.testing.assert_allclose(loss_weights("time", p, epoch=100, warmup_epochs=100)[:, 3], 1 + p.numpy())
+    # exact: 1 + p in float32 both sides
+    np.testing.assert_array_equal(loss_weights("time", p, epoch=100, warmup_epochs=100)[:, 3], 1 + p.numpy())
     assert (loss_weights("uniform", p) == 1).all()
     with pytest.raises(ValueError, match="policy.loss_weighting"):
         loss_weights("cubic", p)
@@ -157,7 +184,8 @@ def test_global_9dof_normalization_squashes_the_fingers_and_grouped_restores_the
         return norm.proprio(torch.from_numpy(qpos))[:, 7:].std(0).numpy()
 
     assert spread("qpos9_global").max() < 0.01  # fingers nearly constant: the thesis' pathology
-    np.testing.assert_allclose(spread("qpos9_grouped"), 1.0, atol=0.01)
+    # derived: a float32 std of the data's own z-scores, two float32 sums of 5000 terms (mean, squares)
+    np.testing.assert_allclose(spread("qpos9_grouped"), 1.0, atol=2 * gamma(5000, EPS32))
 
 
 def test_joints7_tcp_appends_the_tcp_and_zscores_every_dimension():
@@ -165,12 +193,15 @@ def test_joints7_tcp_appends_the_tcp_and_zscores_every_dimension():
     labels = {"qpos": rng.normal(0, 0.5, (500, 9)), "tcp_pos": rng.normal([0, 0, 0.2], 0.05, (500, 3))}
     policy = PolicySettings.of(policy_settings(proprio="joints7_tcp"))
     x = observation.proprio(policy, labels)
-    np.testing.assert_allclose(x, np.concatenate([labels["qpos"][:, :7], labels["tcp_pos"]], 1), rtol=1e-6)
+    # derived: the float64 labels rounded once to float32 (<= eps32 / 2 relative)
+    np.testing.assert_allclose(x, np.concatenate([labels["qpos"][:, :7], labels["tcp_pos"]], 1), rtol=EPS32)
     norm = normalizer(proprio="joints7_tcp")
     fit(norm, x=x, proprio="joints7_tcp")
     z = norm.proprio(torch.from_numpy(x))
-    np.testing.assert_allclose(z.mean(0), 0, atol=1e-5)
-    np.testing.assert_allclose(z.std(0, unbiased=False), 1, atol=1e-4)
+    z_max = float(z.abs().max())
+    # derived: float32 statistics of 500 rows, then float32 moments of their z-scores
+    np.testing.assert_allclose(z.mean(0), 0, atol=2 * mean_atol(500, z_max, eps=EPS32))
+    np.testing.assert_allclose(z.std(0, unbiased=False), 1, atol=2 * gamma(500, EPS32) * z_max)  # derived: ^
     assert observation.proprio(PolicySettings.of(policy_settings()), labels).shape == (500, 7)
 
 
@@ -213,8 +244,9 @@ def test_a_given_estimate_changes_only_what_the_policy_sees(tmp_path):
     clean = model(*args)
     # an estimate given from outside (the closed loop's per-step read-outs, or the true pose) is what the policy
     # sees; the read-out itself (and its loss) stays
-    assert torch.equal(clean.actions, model(*args, readout_seen=clean.readout).actions)
+    assert torch.equal(clean.actions, model(*args, readout_seen=clean.readout).actions)  # exact: the same numbers in
     shifted = model(*args, readout_seen=clean.readout + 0.5)
+    # derived: a 0.5 shift moves the actions by O(0.1), far above allclose's 1e-5; exact: the read-out never sees it
     assert not torch.allclose(clean.actions, shifted.actions) and torch.equal(clean.readout, shifted.readout)
 
 
@@ -227,8 +259,10 @@ def test_without_visual_tokens_the_policy_sees_the_slots_only_through_its_read_o
     assert seq.shape[1] == policy["window"] * 4  # joints, goal, read-out, action token per step
     fixed = readout.detach()
     # with the read-out's estimate held fixed, nothing else of the tokens reaches the actions
+    # exact: the tokens reach nothing on this path, so the same operations run on the same numbers
     torch.testing.assert_close(model(tokens + 1.0, proprio, goal, readout_seen=fixed).actions,
                                model(tokens, proprio, goal, readout_seen=fixed).actions, rtol=0, atol=0)
+    # derived: a +1 shift of every token moves the read-out by O(1), far above allclose's 1e-5 relative
     assert not torch.allclose(model(tokens + 1.0, proprio, goal).actions, model(tokens, proprio, goal).actions)
 
 
@@ -240,9 +274,11 @@ def test_visual_dropout_blanks_steps_in_training_only():
     fixed = model.tokens(tokens, proprio, goal)[1].detach()
     model.train()
     # every step blanked: the visual tokens do not reach the actions (the read-out's estimate is held fixed)
+    # exact: blanked tokens are replaced before any arithmetic, so the same operations run on the same numbers
     torch.testing.assert_close(model(tokens + 1.0, proprio, goal, readout_seen=fixed).actions,
                                model(tokens, proprio, goal, readout_seen=fixed).actions, rtol=0, atol=0)
     model.eval()  # evaluation sees every token
+    # derived: a +1 shift of every token moves the actions by O(1), far above allclose's 1e-5 relative
     assert not torch.allclose(model(tokens + 1.0, proprio, goal, readout_seen=fixed).actions,
                               model(tokens, proprio, goal, readout_seen=fixed).actions)
 
@@ -255,13 +291,15 @@ def test_goal_norm_standardizes_the_goal_in_training_and_in_the_checkpoint(tmp_p
     train(policy, 0, features, frames, tmp_path / "run", progress=False)
     model, *_ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0001.pt")
     z = model.normalizer.goal(torch.from_numpy(d.labels.goal[d.train_frames]))
-    np.testing.assert_allclose(z.mean(0).numpy(), 0.0, atol=1e-4)
-    np.testing.assert_allclose(z.std(0, unbiased=False).numpy(), 1.0, atol=1e-3)
+    n, z_max = len(z), float(z.abs().max())
+    # derived: float32 statistics of the training frames, then float32 moments of their z-scores
+    np.testing.assert_allclose(z.mean(0).numpy(), 0.0, atol=2 * mean_atol(n, z_max, eps=EPS32))
+    np.testing.assert_allclose(z.std(0, unbiased=False).numpy(), 1.0, atol=2 * gamma(n, EPS32) * z_max)  # derived: ^
     train(policy_settings(goal=goal, epochs=1, save_every=1), 0, features, frames, tmp_path / "plain",
           progress=False)
     plain, *_ = load_policy(tmp_path / "plain" / "checkpoints" / "epoch_0001.pt")
     raw = torch.from_numpy(d.labels.goal)
-    assert torch.equal(plain.normalizer.goal(raw), raw)  # goal_norm none: the goal as given
+    assert torch.equal(plain.normalizer.goal(raw), raw)  # exact: goal_norm none passes the goal as given
 
 
 def test_windows_pad_at_episode_edges():
@@ -270,8 +308,9 @@ def test_windows_pad_at_episode_edges():
     assert window_frames(frames, labels, 3).tolist() == [[0, 0, 0], [0, 0, 1], [4, 4, 4], [7, 8, 9]]
     acts = action_frames(frames, labels, 3)
     assert acts.tolist() == [[0, 1, 2], [1, 2, 3], [4, 5, 6], [9, 9, 9]]
-    np.testing.assert_allclose(progress(acts, frames, labels)[3], [1, 1, 1])
-    np.testing.assert_allclose(progress(acts, frames, labels)[0], [0, 1 / 3, 2 / 3])
+    np.testing.assert_array_equal(progress(acts, frames, labels)[3], [1, 1, 1])  # exact: 3 / 3 etc.
+    # derived: k / 3 rounded to float32 (<= eps32 / 2 relative) against float64 thirds
+    np.testing.assert_allclose(progress(acts, frames, labels)[0], [0, 1 / 3, 2 / 3], rtol=EPS32)
 
 
 class ReadRecorder:
@@ -301,7 +340,7 @@ def test_loader_yields_each_window_once_per_epoch_one_chunk_at_a_time():
             # the window really is the T frames before the current one (clamped at the episode start)
             starts = torch.as_tensor(labels.start)[current]
             expect = torch.maximum(current[:, None] - torch.arange(T - 1, -1, -1), starts[:, None])
-            assert torch.equal(batch["tokens"][:, :, 0, 0, 0].long(), expect)
+            assert torch.equal(batch["tokens"][:, :, 0, 0, 0].long(), expect)  # exact: frame indices
         assert sorted(seen) == list(range(N))
         orders.append(seen)
     assert orders[0] != orders[1]
@@ -340,6 +379,7 @@ def test_training_writes_checkpoints_and_log_and_a_killed_run_resumes_identicall
     a = torch.load(tmp_path / "full" / "checkpoints" / "epoch_0004.pt", weights_only=False)
     b = torch.load(tmp_path / "resumed" / "checkpoints" / "epoch_0004.pt", weights_only=False)
     for k in a["model"]:
+        # one-cpu: both trainings ran here, so the same kernels; another CPU kind would give other bits to both
         assert torch.equal(a["model"][k], b["model"][k]), k
     assert pl.read_parquet(tmp_path / "resumed" / "train_log.parquet")["epoch"].to_list() == [1, 2, 3, 4]
 
@@ -388,14 +428,17 @@ def test_goal_relative_adds_the_goal_minus_the_tcp_as_the_closed_loop_computes_i
     rel = observation.goal(policy, labels, cams)
     G = plain.shape[1]
     assert rel.shape == (len(plain), 2 * G)
-    np.testing.assert_array_equal(rel[:, :G], plain)
+    np.testing.assert_array_equal(rel[:, :G], plain)  # exact: the same code, its columns kept
     tcp = labels["tcp_pos"]
     if goal == "3d":
-        np.testing.assert_allclose(rel[:, G:], labels["goal_pos"] - tcp, atol=1e-6)
+        np.testing.assert_array_equal(rel[:, G:], labels["goal_pos"] - tcp)  # exact: one float32 subtraction
     else:  # the TCP goes through the goal's own camera model
         if calibration == "exact":
-            np.testing.assert_allclose(plain, frames["goal2d_exact"][:], atol=1e-6)  # the store's own projection
-        np.testing.assert_allclose(rel[:, G:], plain - projection.goal2d(tcp, *cams, 64), atol=1e-5)
+            # exact: the store's own projection, the same float64 code on the same float32 inputs
+            np.testing.assert_array_equal(plain, frames["goal2d_exact"][:])
+        # derived: image fractions in [0, 1]; the product rounds once to float32 after the float64 difference, the
+        # expected side rounds the goal's projection once before it (<= eps32 / 2 each)
+        np.testing.assert_allclose(rel[:, G:], plain - projection.goal2d(tcp, *cams, 64), rtol=0, atol=EPS32)
     assert np.ptp(rel[:, G:] - rel[:, :G], axis=0).min() > 0.01  # the hand moves: not the goal in disguise
     # one simulator step gives the same input from its goal, TCP and camera parameters
     K, E = frames["cam_intrinsic"][:], frames["cam_extrinsic"][:]
@@ -405,6 +448,7 @@ def test_goal_relative_adds_the_goal_minus_the_tcp_as_the_closed_loop_computes_i
                                          envs.approx_camera_matrices(default_config, ["base", "side"], 64))
     for i in (0, 17, 60):
         step = {k: v[i : i + 1] for k, v in labels.items()}
+        # exact: a row of the batch; every operation is per row (no sum spans rows)
         np.testing.assert_array_equal(observation.goal(policy, step, step_cams)[0], rel[i])
     if calibration == "approx":
         with pytest.raises(ValueError, match="camera_approx"):

@@ -7,6 +7,7 @@ import torch
 import zarr
 from policy_stores import policy_settings, write_stores
 from test_frames_store import write_shard
+from tolerances import EPS32, reduction_atol
 
 from ocpipe.config import validate as C
 from ocpipe.encoders.state import state_tokens
@@ -41,13 +42,16 @@ def test_scenes_hold_the_reset_scene_drawn_with_a_demo_arm_pose(tmp_path, defaul
         for i in range(3):
             env.reset(seed=50_000 + i)
             r = envs.task_readouts(env)
-            np.testing.assert_allclose(root["obj_pos"][i], r["obj_pos"], atol=1e-6)  # where the reset put it
+            # exact: where the reset put it: the seed's float32 draw, read back from PhysX with no physics step between
+            np.testing.assert_array_equal(root["obj_pos"][i], r["obj_pos"])
             assert np.linalg.norm(root["tcp_pos"][i] - r["tcp_pos"]) > 0.01  # the arm moved off its reset pose
     finally:
         env.close()
     assert np.ptp(root["tokens"][...].astype(np.float32), axis=0).max() > 0  # rendered scenes, not one image
     again = tmp_path / "again.zarr"
     scenes.render_scenes(MeanColour(), default_config, "PickCube-v1", "dual", 32, frames, again, 3, 50_000, seed=0)
+    # one-cpu: both stores rendered and encoded here (rasterizer and float32 means); another CPU kind could give other
+    # bits to both
     np.testing.assert_array_equal(zarr.open_group(str(again), mode="r")["tokens"][...], root["tokens"][...])
 
 
@@ -66,8 +70,10 @@ def test_near_scenes_put_the_object_beside_a_demo_hand_at_a_random_yaw(tmp_path,
             env.reset(seed=50_000 + i)
             assert np.linalg.norm(pos - envs.task_readouts(env)["obj_pos"]) > 1e-3  # moved off the reset place
             gaps = np.linalg.norm(demo_obj - pos, axis=1)
-            assert gaps.min() <= 0.05 + 1e-5  # within the radius of a demo frame's object
-            assert abs(pos[2] - demo_obj[gaps.argmin(), 2]) < 1e-5  # at that frame's height
+            # within the radius of a demo frame's object, at that frame's height; derived: the placement and the
+            # pose PhysX reads back are a few float32 operations on values under 1 m
+            assert gaps.min() <= 0.05 + reduction_atol(4, 1.0, eps=EPS32)
+            assert abs(pos[2] - demo_obj[gaps.argmin(), 2]) < reduction_atol(4, 1.0, eps=EPS32)  # derived: as above
     finally:
         env.close()
     yaws = np.degrees(state_tokens(root["obj_pos"][...], root["obj_quat"][...])[:, 0, 0, 3])
@@ -88,6 +94,7 @@ def test_shards_merge_into_the_store_one_job_writes(tmp_path, default_config):
     assert scenes.merge_scenes(parts[::-1], tmp_path / "merged.zarr") == {"scenes": 5, "shards": 3}
     one, merged = (zarr.open_group(str(tmp_path / n), mode="r") for n in ("one.zarr", "merged.zarr"))
     for k in ("tokens", *scenes.LABELS):
+        # one-cpu: shards and the single job rendered the same scenes here; shards from other CPU kinds could differ
         np.testing.assert_array_equal(merged[k][...], one[k][...])
     assert dict(merged.attrs) == dict(one.attrs)
     # a shard of another store (other scene seeds) is refused, and nothing is written
@@ -145,7 +152,8 @@ def test_a_readout_fitted_on_scenes_reads_them_and_stays_frozen(tmp_path, standa
     ckpts = [torch.load(tmp_path / "run" / "checkpoints" / f"epoch_000{e}.pt", weights_only=False)["model"]
              for e in (1, 2)]
     readout = [k for k in ckpts[0] if k.startswith("sources.3.readout.")]  # the object source, after the goal
-    assert readout and all(torch.equal(ckpts[0][k], ckpts[1][k]) for k in readout)
+    assert readout and all(torch.equal(ckpts[0][k], ckpts[1][k]) for k in readout)  # exact: frozen, so copies
+    # exact: an optimizer step changes some decoder weight by far more than one ulp; equal bits would mean no step
     assert any(not torch.equal(ckpts[0][k], ckpts[1][k]) for k in ckpts[0] if k.startswith("decoder."))
 
     model, _, _ = load_policy(tmp_path / "run" / "checkpoints" / "epoch_0002.pt")
@@ -190,4 +198,5 @@ def test_a_killed_run_with_a_scenes_readout_resumes_identically_without_refittin
     # every weight and statistic, the read-out's input statistics fitted over demos and scenes among them
     assert "normalizer.readout.mean" in a["model"]
     for k in a["model"]:
+        # one-cpu: both trainings ran here, so the same kernels; another CPU kind would give other bits to both
         assert torch.equal(a["model"][k], b["model"][k]), k

@@ -57,7 +57,7 @@ def test_representation_table_keeps_rows_without_weights_with_their_settings(def
     assert (dense["Visual tokens"], dense["T"], dense["H"], dense["Batch"]) == (392, 1, 1, 4)
     assert by["DINO CLS"]["Visual tokens"] == 2 and by["DINO 4x4"]["Visual tokens"] == 32
     assert ssl["Status"] == "ok" and ssl["Visual tokens"] == 14
-    assert ssl["SR mean"] == pytest.approx(0.75) and ssl["Minutes/epoch"] == pytest.approx(1.0)
+    assert ssl["SR mean"] == 0.75 and ssl["Minutes/epoch"] == 1.0  # exact: (1/2 + 1) / 2 and (30 + 90) / 2 / 60
 
 
 def test_generalization_gap_is_training_seed_sr_minus_held_out_sr():
@@ -65,8 +65,9 @@ def test_generalization_gap_is_training_seed_sr_minus_held_out_sr():
                      {"stability": pl.concat([episodes(0, [True, False, False, False]), episodes(1, [False] * 4)]),
                       "train_seeds": episodes(0, [True, True, False, False])})
     r = tables.build(registry.TABLES["table5_6"].columns, [row]).row(0, named=True)
-    assert r["Training-seed SR"] == pytest.approx(0.5) and r["Held-out SR"] == pytest.approx(0.125)
-    assert r["Gap"] == pytest.approx(0.375)
+    # exact: 2/4, (1/4 + 0) / 2 and their difference are exact in binary
+    assert r["Training-seed SR"] == 0.5 and r["Held-out SR"] == 0.125
+    assert r["Gap"] == 0.375  # exact: as above
 
 
 def _fake_run(runs, exp, n_runs=3, epochs=(8, 16), pos_rows=85):
@@ -98,10 +99,13 @@ def test_window_and_head_tables_read_checkpoints_and_sweeps(default_config, tmp_
     t = report.write_table(default_config, "table5_5", tmp_path / "t5.csv", tmp_path / "t5.md", runs_dir=runs)
     assert t["Parameters"].to_list() == [85 * 4 + 15] * 4
     # one 30-episode training-time run per head, not the stability runs: 3 of 30 with its Wilson interval
+    # exact: 3 / 30 rounds once to the double nearest 0.1; approx only because 0.1 is written in decimal
     assert t["SR"].to_list() == [pytest.approx(0.1)] * 4 and t["Runs"].to_list() == [1] * 4
     assert t["Episodes per run"].to_list() == [30] * 4
-    assert t["SR 95 % low"][0] == pytest.approx(0.0346, abs=1e-3) and t["SR 95 % high"][0] == pytest.approx(0.2562,
-                                                                                                           abs=1e-3)
+    # derived: the expected sides are the Wilson bounds of 3 in 30 (0.0345999, 0.2562108) rounded to 4 decimals, so
+    # off by <= 5e-5; scipy's float64 adds ~1e-16
+    assert t["SR 95 % low"][0] == pytest.approx(0.0346, abs=5e-5)
+    assert t["SR 95 % high"][0] == pytest.approx(0.2562, abs=5e-5)  # derived: as above
     assert pl.read_csv(tmp_path / "t5.csv")["Head"].to_list() == ["flatten", "deepsets", "weighted_pool",
                                                                   "slot_transformer"]
 
@@ -172,14 +176,20 @@ def test_tables_put_each_rows_figures_in_its_row(default_config, tmp_path):
                 "Explicit-3D-GT": ([32, 30, 31], 80), "Privileged state (control)": ([39, 40, 38], 70)}
     for label, (per_run, length) in expected.items():
         rates = [k / 40 for k in per_run]
+        # derived: 3 float64 sums and a division, in numpy's order and in Python's (<= 1e-15 relative); approx's 1e-6
+        # default is far above that and far below a swapped row (rates differ by >= 1/40)
         assert by[label]["SR mean"] == pytest.approx(sum(rates) / 3)
+        # derived: numpy's and polars' sample std of 3 rates <= 1: a few float64 sums, off by ~1e-15, so <= 1e-13
+        # relative at these stds (>= 0.025); approx's 1e-6 default is far above that and far below a swapped row
         assert by[label]["SR std"] == pytest.approx(float(pl.Series(rates).std()))
-        assert by[label]["Episode length mean"] == pytest.approx(length, abs=0.5)  # lengths spread +-3 around it
+        # exact: synthetic_runs spreads the 40 lengths by (i % 7) - 3, a sum of -5; integer sums over 40 and 3 runs of
+        # one dyadic mean are exact in binary
+        assert by[label]["Episode length mean"] == length + sum(i % 7 - 3 for i in range(40)) / 40
         assert (by[label]["Runs"], by[label]["Episodes per run"]) == (3, 40)
     t2 = report.write_table(default_config, "table5_2", tmp_path / "t2.csv", tmp_path / "t2.md", str(runs))
     by2 = {r["Method"]: r for r in t2.iter_rows(named=True)}
     assert [by2[m]["Near Miss"] for m in by] == [40, 20, 2, 1] and [by2[m]["Success"] for m in by] == [12, 60, 93, 117]
-    assert by2["Pure Visual"]["Near Miss %"] == pytest.approx(100 * 40 / 120)
+    assert by2["Pure Visual"]["Near Miss %"] == 100 * 40 / 120  # exact: 4000 / 120 rounded once on both sides
     assert by2["Explicit-3D-GT"]["Drop"] == 120 - 93 - 2 - 14
     assert (tmp_path / "t1.md").read_text().rstrip().splitlines()[-1].startswith("Profile cpu-default.")
 

@@ -1,0 +1,127 @@
+"""How the tests compare numbers: every comparison in tests/ is one of three kinds, named by a tag in a comment on
+its statement or in the comment lines just above it. tests/test_tolerance_audit.py fails on a comparison without
+one; `python tests/tolerances.py` lists them all and prints the tally.
+
+  exact:    equal by construction: copies, integer or decimal-exact arithmetic, or the same operations in the same
+            order on the same inputs, so any CPU gives the same bits. Compared with == (a tolerance only where the
+            expected side is written in decimal and so rounds, e.g. 0.1).
+  one-cpu:  exact on one CPU kind only: float kernels (vector width, FMA, thread split) decide the last bits, so the
+            comparison is between two runs on the same machine; what is stable across CPUs is compared apart.
+  derived:  a tolerance that follows from the dtype's epsilon and the problem size (reduction_atol), in float64
+            wherever the test checks that two computations are the same function, so float32 round-off is no part
+            of what it checks. Never a number fitted to the last failure.
+"""
+
+from __future__ import annotations
+
+import ast
+import io
+import re
+import sys
+import tokenize
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+EPS64 = float(np.finfo(np.float64).eps)
+EPS32 = float(np.finfo(np.float32).eps)
+EPS16 = float(np.finfo(np.float16).eps)
+KINDS = ("exact", "one-cpu", "derived")
+TAG = re.compile(r"#.*?\b(exact|one-cpu|derived):")
+# calls that compare numbers (by name, whatever module they come from)
+COMPARING_CALLS = {"allclose", "assert_allclose", "assert_close", "approx", "isclose", "assert_array_equal",
+                   "array_equal", "equal", "assert_frame_equal", "assert_array_almost_equal"}
+READS_A_FILE = {"read_bytes", "read_text"}
+
+
+def gamma(n: int, eps: float = EPS64) -> float:
+    """Higham's gamma_n = n eps / (1 - n eps): the relative error bound of n chained floating-point operations."""
+    if n * eps >= 1:
+        raise ValueError(f"{n} operations at eps {eps} have no error bound")
+    return n * eps / (1 - n * eps)
+
+
+def reduction_atol(n: int, magnitude: float, depth: int = 1, eps: float = EPS64) -> float:
+    """How far two evaluation orders of the same computation may differ: ``depth`` reductions in sequence, each a sum
+    of ``n`` terms no larger than ``magnitude``. One such sum is off by at most gamma_(n-1) * sum|x_i| <= gamma_n *
+    n * magnitude (Higham, Accuracy and Stability of Numerical Algorithms, 2002, eq. 4.4); two orders differ by
+    twice that, and errors carried through later reductions add one such term per reduction."""
+    return 2 * depth * gamma(n, eps) * n * magnitude
+
+
+def mean_atol(n: int, magnitude: float, eps: float = EPS64) -> float:
+    """reduction_atol for the mean of ``n`` terms no larger than ``magnitude`` (the sum's bound over n)."""
+    return reduction_atol(n, magnitude, eps=eps) / n
+
+
+# ---- the audit: find every comparison and its tag ------------------------------------------------------------------
+
+
+def _called_name(call: ast.Call) -> str | None:
+    f = call.func
+    return f.attr if isinstance(f, ast.Attribute) else f.id if isinstance(f, ast.Name) else None
+
+
+def _reads_a_file(node: ast.AST) -> bool:
+    return any(isinstance(n, ast.Call) and _called_name(n) in READS_A_FILE for n in ast.walk(node))
+
+
+def comparisons(source: str) -> list[tuple[int, str]]:
+    """(line, what) of every numeric comparison (a call in COMPARING_CALLS, or abs(a - b) < tolerance) and every
+    file compared with == or != (a golden or a rerun compared byte for byte) in a test module's source."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Call) and _called_name(node) in COMPARING_CALLS:
+            found.append((node.lineno, _called_name(node)))
+        elif isinstance(node, ast.Compare) and any(isinstance(op, (ast.Eq, ast.NotEq)) for op in node.ops) \
+                and _reads_a_file(node):
+            found.append((node.lineno, "file =="))
+        elif isinstance(node, ast.Compare) and isinstance(node.left, ast.Call) and _called_name(node.left) == "abs" \
+                and any(isinstance(op, (ast.Lt, ast.LtE)) for op in node.ops):
+            found.append((node.lineno, "abs(...) <"))  # a tolerance written out by hand
+    return sorted(set(found))
+
+
+def _statements(tree: ast.AST) -> list[ast.stmt]:
+    return [n for n in ast.walk(tree) if isinstance(n, ast.stmt) and not isinstance(n, (ast.FunctionDef, ast.ClassDef,
+                                                                                          ast.With, ast.For, ast.If,
+                                                                                          ast.Try, ast.AsyncWith))]
+
+
+def audit(source: str) -> list[tuple[int, str, str | None]]:
+    """(line, what, kind) for each comparison in ``source``; kind None where no tag names it. A tag counts on any
+    line of the smallest statement holding the comparison, or in the comment lines right above that statement."""
+    comments = {}
+    for tok in tokenize.generate_tokens(io.StringIO(source).readline):
+        if tok.type == tokenize.COMMENT:
+            comments[tok.start[0]] = tok.string
+    lines = source.splitlines()
+    statements = _statements(ast.parse(source))
+    out = []
+    for line, what in comparisons(source):
+        holding = [s for s in statements if s.lineno <= line <= (s.end_lineno or s.lineno)]
+        stmt = min(holding, key=lambda s: (s.end_lineno or s.lineno) - s.lineno) if holding else None
+        first, last = (stmt.lineno, stmt.end_lineno or stmt.lineno) if stmt else (line, line)
+        span = list(range(first, last + 1))
+        above = first - 1
+        while above >= 1 and lines[above - 1].lstrip().startswith("#"):
+            span.append(above)
+            above -= 1
+        kinds = [m.group(1) for n in span if n in comments for m in [TAG.search(comments[n])] if m]
+        out.append((line, what, kinds[0] if kinds else None))
+    return out
+
+
+def audit_tree(tests: Path) -> dict[str, list[tuple[int, str, str | None]]]:
+    return {p.name: audit(p.read_text()) for p in sorted(tests.glob("*.py")) if p.name != Path(__file__).name}
+
+
+if __name__ == "__main__":
+    found = audit_tree(Path(__file__).parent)
+    tally = Counter(kind for rows in found.values() for _, _, kind in rows)
+    if "-v" in sys.argv:
+        for name, rows in found.items():
+            for line, what, kind in rows:
+                print(f"{name}:{line}\t{what}\t{kind or 'UNTAGGED'}")
+    print(", ".join(f"{k}: {tally[k]}" for k in KINDS), f"(untagged: {tally[None]}, total {sum(tally.values())})")
