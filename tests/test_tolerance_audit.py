@@ -23,11 +23,12 @@ def test_x(a, b, path, other):
     assert a == pytest.approx(0.1)  # exact: a decimal
     assert a == 1  # a plain comparison of values is not a tolerance
     assert abs(a - b) < 1e-3
+    assert stats.equal(a, b) and torch.equal(a, b)  # a project function that shares torch's name is no comparison
 '''
     rows = audit(source)
     assert [(line, what) for line, what, _ in rows] == [(3, "assert_allclose"), (5, "assert_close"), (7, "file =="),
-                                                        (8, "approx"), (10, "abs(...) <")]
-    assert [kind for *_, kind in rows] == [None, "derived", "one-cpu", "exact", None]
+                                                        (8, "approx"), (10, "abs(...) <"), (11, "equal")]
+    assert [kind for *_, kind in rows] == [None, "derived", "one-cpu", "exact", None, None]
 
 
 def test_the_derived_bound_grows_with_the_sum_and_holds_for_a_real_one():

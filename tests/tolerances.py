@@ -32,6 +32,7 @@ TAG = re.compile(r"#.*?\b(exact|one-cpu|derived):")
 # calls that compare numbers (by name, whatever module they come from)
 COMPARING_CALLS = {"allclose", "assert_allclose", "assert_close", "approx", "isclose", "assert_array_equal",
                    "array_equal", "equal", "assert_frame_equal", "assert_array_almost_equal"}
+ARRAY_MODULE_ONLY = {"equal", "array_equal"}
 READS_A_FILE = {"read_bytes", "read_text"}
 
 
@@ -63,6 +64,14 @@ def _called_name(call: ast.Call) -> str | None:
     return f.attr if isinstance(f, ast.Attribute) else f.id if isinstance(f, ast.Name) else None
 
 
+def _compares(call: ast.Call) -> bool:
+    name = _called_name(call)
+    if name in ARRAY_MODULE_ONLY:  # torch.equal or np.array_equal, not a function of the project's that shares a name
+        f = call.func
+        return isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) and f.value.id in ("torch", "np")
+    return name in COMPARING_CALLS
+
+
 def _reads_a_file(node: ast.AST) -> bool:
     return any(isinstance(n, ast.Call) and _called_name(n) in READS_A_FILE for n in ast.walk(node))
 
@@ -72,7 +81,7 @@ def comparisons(source: str) -> list[tuple[int, str]]:
     file compared with == or != (a golden or a rerun compared byte for byte) in a test module's source."""
     found = []
     for node in ast.walk(ast.parse(source)):
-        if isinstance(node, ast.Call) and _called_name(node) in COMPARING_CALLS:
+        if isinstance(node, ast.Call) and _compares(node):
             found.append((node.lineno, _called_name(node)))
         elif isinstance(node, ast.Compare) and any(isinstance(op, (ast.Eq, ast.NotEq)) for op in node.ops) \
                 and _reads_a_file(node):

@@ -1,0 +1,174 @@
+"""Claims about rows judged with the trained policy as the unit of evidence.
+
+A row of a table is K policies trained independently from one recipe, each evaluated on its own block of episodes.
+Two sources of spread act on a row's success rate: the episodes a policy meets (binomial) and the training run
+itself (initialisation, batch order, the float kernels of the machine), which moved one recipe's Pure Visual row
+from 25 to 12 of 119 between two builds. Pooling a row's episodes and testing them as one binomial sample (Fisher's
+exact test) sees only the first, so it calls rows different that are not (simulate_false_positives shows how often).
+
+Here each policy contributes one number (its success rate, or a share, or a mean), and rows are compared with
+Welch's t-test on those K numbers: its variance is the spread between policies, which holds both sources, and it
+needs no equal variances or normal episodes (a policy's rate is a mean of 40 or more episodes). Where a row's K
+rates happen to agree more closely than its episodes alone allow, its variance is floored at the binomial variance
+of one policy's rate, p (1 - p) / n at the two rows' pooled rate p: the episode noise every policy carries, which a
+small K can hide (five policies at 0 of 40 would otherwise be 'resolved' below five at 1 of 40 with p = 0).
+
+'About the same' claims are tested for equivalence (two one-sided tests, TOST) within a margin, and 'at most'
+claims for non-inferiority with that margin: such a claim counts only when its test resolves it, never merely
+because no difference was found."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+ALPHA = 0.05
+POWER = 0.8
+MARGIN = 0.10  # of a rate or share, unless a finding names another
+
+
+@dataclass(frozen=True)
+class PolicyValues:
+    """One row's per-policy figures: ``values`` (a rate or share per policy) and ``episodes`` (how many episodes
+    each value is of; the binomial floor uses them, None for values that are not rates)."""
+
+    values: np.ndarray
+    episodes: np.ndarray | None = None
+
+    @classmethod
+    def of_counts(cls, counts) -> PolicyValues:
+        """From (successes, episodes) per policy."""
+        k, n = np.asarray(counts, float).reshape(-1, 2).T
+        if (n <= 0).any():
+            raise ValueError(f"a policy with no episodes among {counts}")
+        return cls(k / n, n)
+
+    @property
+    def mean(self) -> float:
+        return float(self.values.mean())
+
+    @property
+    def policies(self) -> int:
+        return len(self.values)
+
+    def variance(self, rate: float | None = None) -> float:
+        """The between-policy variance of one policy's value, floored at the episode noise of a policy at ``rate``
+        (module docstring; the two rows' pooled rate, as under 'no difference')."""
+        sample = float(self.values.var(ddof=1)) if self.policies > 1 else 0.0
+        if self.episodes is None or rate is None:
+            return sample
+        return max(sample, rate * (1 - rate) / float(self.episodes.mean()))
+
+
+@dataclass(frozen=True)
+class Welch:
+    difference: float  # mean of a minus mean of b
+    se: float
+    df: float
+
+    @classmethod
+    def of(cls, a: PolicyValues, b: PolicyValues) -> Welch:
+        if a.policies < 2 or b.policies < 2:
+            raise ValueError(f"rows of {a.policies} and {b.policies} policies: the spread between policies needs "
+                             "at least 2 per row (config `replicates`)")
+        pooled = None
+        if a.episodes is not None and b.episodes is not None:
+            pooled = float((a.values * a.episodes).sum() + (b.values * b.episodes).sum()) / float(
+                a.episodes.sum() + b.episodes.sum())
+        va, vb = a.variance(pooled) / a.policies, b.variance(pooled) / b.policies
+        se = float(np.sqrt(va + vb))
+        df = (va + vb) ** 2 / (va**2 / (a.policies - 1) + vb**2 / (b.policies - 1)) if se > 0 else 1.0
+        return cls(a.mean - b.mean, se, float(df))
+
+    def p_below(self, shift: float = 0.0) -> float:
+        """One-sided p of 'difference < shift'."""
+        if self.se == 0:
+            return 0.0 if self.difference < shift else 1.0
+        return float(stats.t.cdf((self.difference - shift) / self.se, self.df))
+
+    def p_above(self, shift: float = 0.0) -> float:
+        """One-sided p of 'difference > shift'."""
+        if self.se == 0:
+            return 0.0 if self.difference > shift else 1.0
+        return float(stats.t.sf((self.difference - shift) / self.se, self.df))
+
+    def resolvable_gap(self, alpha: float = ALPHA, power: float = POWER) -> float:
+        """The smallest true difference a one-sided test at ``alpha`` finds with probability ``power``, at this
+        spread and these policy counts."""
+        return float((stats.t.ppf(1 - alpha, self.df) + stats.t.ppf(power, self.df)) * self.se)
+
+
+@dataclass(frozen=True)
+class Result:
+    test: str
+    p: float  # of the claim (the smaller, the stronger the evidence for it)
+    outcome: str  # holds | unresolved | tie | opposite | violated | not contradicted
+    resolvable_gap: float  # at 80 % power (module docstring)
+
+
+def less(a: PolicyValues, b: PolicyValues, alpha: float = ALPHA) -> Result:
+    """Claim: a's mean < b's. Holds when resolved; violated when the opposite is resolved."""
+    w = Welch.of(a, b)
+    p, p_opposite = w.p_below(), w.p_above()
+    if p_opposite < alpha:
+        outcome = "violated"
+    elif p < alpha:
+        outcome = "holds"
+    else:
+        outcome = "unresolved" if w.difference < 0 else "tie" if w.difference == 0 else "opposite"
+    return Result("Welch t over policies, one-sided", p, outcome, w.resolvable_gap(alpha))
+
+
+def at_most(a: PolicyValues, b: PolicyValues, margin: float = MARGIN, alpha: float = ALPHA) -> Result:
+    """Claim: a's mean is at most b's. Holds when non-inferiority resolves a < b + margin; violated when a > b is
+    resolved; else not contradicted."""
+    w = Welch.of(a, b)
+    p = w.p_below(margin)
+    outcome = "violated" if w.p_above() < alpha else "holds" if p < alpha else "not contradicted"
+    return Result(f"Welch t over policies, non-inferiority margin {margin:g}", p, outcome, w.resolvable_gap(alpha))
+
+
+def equal(a: PolicyValues, b: PolicyValues, margin: float = MARGIN, alpha: float = ALPHA) -> Result:
+    """Claim: the means are about the same. Holds when TOST resolves |a - b| < margin; violated when a two-sided
+    test resolves them apart; else not contradicted."""
+    w = Welch.of(a, b)
+    p = max(w.p_above(-margin), w.p_below(margin))
+    apart = 2 * min(w.p_above(), w.p_below()) < alpha
+    outcome = "violated" if apart else "holds" if p < alpha else "not contradicted"
+    return Result(f"TOST over policies, margin {margin:g}", p, outcome, w.resolvable_gap(alpha))
+
+
+def verdict(outcomes: list[str], margin: float = MARGIN) -> str:
+    """A finding's verdict from its checks' outcomes, worst first."""
+    found = set(outcomes)
+    for outcome, says in (("violated", "not reproduced"), ("opposite", "opposite direction, not resolved"),
+                          ("tie", "no difference seen, not resolved"), ("unresolved", "same direction, not resolved"),
+                          ("not contradicted", f"not contradicted, could not resolve ±{100 * margin:.0f} points")):
+        if outcome in found:
+            return says
+    return "reproduced"
+
+
+def simulate_rows(rate: float, between_sd: float, policies: int, episodes: int, rows: int,
+                  rng: np.random.Generator) -> np.ndarray:
+    """Success counts (rows, policies) of rows whose policies' true rates spread by ``between_sd`` around ``rate``
+    (clipped to [0, 1]), each policy meeting ``episodes`` episodes."""
+    true = np.clip(rng.normal(rate, between_sd, (rows, policies)), 0, 1)
+    return rng.binomial(episodes, true)
+
+
+def simulate_false_positives(rate: float, between_sd: float, policies: int, episodes: int, sims: int,
+                             seed: int = 0) -> dict[str, float]:
+    """How often two rows of equal mean are called different at ALPHA (one-sided, a < b): by Welch's test over
+    policies, and by Fisher's exact test on the pooled episodes."""
+    rng = np.random.default_rng(seed)
+    a, b = (simulate_rows(rate, between_sd, policies, episodes, sims, rng) for _ in range(2))
+    n = np.full(policies, episodes)
+    welch = [less(PolicyValues.of_counts(np.c_[x, n]), PolicyValues.of_counts(np.c_[y, n])).p < ALPHA
+             for x, y in zip(a, b)]
+    total = policies * episodes
+    fisher = [stats.fisher_exact([[x.sum(), total - x.sum()], [y.sum(), total - y.sum()]], "less").pvalue < ALPHA
+              for x, y in zip(a, b)]
+    return {"welch": float(np.mean(welch)), "fisher": float(np.mean(fisher))}

@@ -1,0 +1,85 @@
+"""Tests with the trained policy as the unit (ocpipe.study.by_policy): each verdict on synthetic rows, and the false
+positive rates of the order and equivalence tests, simulated at the default K and episode budget."""
+
+import numpy as np
+import pytest
+
+from ocpipe.study import by_policy as B
+
+K, EPISODES, SIMS = 5, 40, 2000
+# the Monte Carlo error of a rate of 0.05 estimated from SIMS draws: a test at nominal passes 3 SE above it
+ALLOWED = B.ALPHA + 3 * np.sqrt(B.ALPHA * (1 - B.ALPHA) / SIMS)
+
+
+def row(*successes, episodes=EPISODES):
+    return B.PolicyValues.of_counts([(k, episodes) for k in successes])
+
+
+def test_an_order_holds_only_when_the_policies_resolve_it():
+    assert B.less(row(8, 10, 6, 9, 7), row(20, 24, 18, 22, 21)).outcome == "holds"
+    assert B.less(row(8, 16, 6, 20, 7), row(12, 24, 5, 19, 9)).outcome == "unresolved"  # 11.4 vs 13.8 of 40
+    assert B.less(row(12, 24, 5, 19, 9), row(8, 16, 6, 20, 7)).outcome == "opposite"
+    assert B.less(row(0, 0, 0), row(0, 0, 0)).outcome == "tie"
+    assert B.less(row(20, 24, 18, 22, 21), row(8, 10, 6, 9, 7)).outcome == "violated"
+
+
+def test_rows_that_agree_closely_keep_their_episode_noise():
+    # five policies each at 0/40 against five each at 1/40: no spread between policies, so Welch's t alone would
+    # resolve 0 % below 2.5 % with p = 0; floored at the binomial variance of a policy at the pooled 1.25 %, the test
+    # is what 400 episodes can say
+    a, b = row(0, 0, 0, 0, 0), row(1, 1, 1, 1, 1)
+    w = B.Welch.of(a, b)
+    assert w.se == pytest.approx(np.sqrt(2 * 0.0125 * 0.9875 / 40 / 5), rel=1e-12)  # derived: a few float64 ops
+    assert 0.01 < B.less(a, b).p < B.ALPHA
+
+
+def test_equal_and_at_most_claims_hold_only_when_their_test_resolves_them():
+    same = row(20, 21, 19, 20, 20), row(20, 19, 21, 20, 20)
+    assert B.equal(*same).outcome == "holds"  # 50 % against 50 %, tightly: within 10 points, resolved
+    assert B.equal(row(10, 30, 15, 25, 20), row(12, 28, 16, 24, 22)).outcome == "not contradicted"  # too spread
+    assert B.equal(row(8, 10, 6, 9, 7), row(20, 24, 18, 22, 21)).outcome == "violated"
+    assert B.at_most(*same).outcome == "holds"
+    assert B.at_most(row(10, 30, 15, 25, 20), row(12, 28, 16, 24, 22)).outcome == "not contradicted"
+    assert B.at_most(row(20, 24, 18, 22, 21), row(8, 10, 6, 9, 7)).outcome == "violated"
+
+
+def test_verdicts_combine_outcomes_worst_first():
+    assert B.verdict(["holds", "holds"]) == "reproduced"
+    assert B.verdict(["holds", "not contradicted"]) == "not contradicted, could not resolve ±10 points"
+    assert B.verdict(["not contradicted", "unresolved"]) == "same direction, not resolved"
+    assert B.verdict(["unresolved", "opposite"]) == "opposite direction, not resolved"
+    assert B.verdict(["holds", "violated"]) == "not reproduced"
+
+
+def test_one_policy_per_row_cannot_be_judged():
+    with pytest.raises(ValueError, match="at least 2 per row"):
+        B.less(row(10), row(20, 21))
+
+
+def test_the_resolvable_gap_shrinks_with_more_policies():
+    spread = [6, 14, 9, 12, 8, 11, 7, 13, 10, 10]
+    few, many = (B.Welch.of(row(*spread[:k]), row(*[s + 4 for s in spread[:k]])) for k in (3, 10))
+    assert many.resolvable_gap() < few.resolvable_gap()
+    # at 80 % power the gap exceeds the one-sided critical difference
+    assert few.resolvable_gap() > few.se * 2.0
+
+
+@pytest.mark.parametrize("rate", [0.3, 0.5])
+@pytest.mark.parametrize("between_sd", [0.05, 0.10])
+def test_the_order_test_calls_equal_rows_different_at_most_at_its_nominal_rate(rate, between_sd):
+    rates = B.simulate_false_positives(rate, between_sd, K, EPISODES, SIMS, seed=1)
+    assert rates["welch"] <= ALLOWED, rates
+    # and what the pooled-episode test it replaces does on the same rows
+    if between_sd == 0.10:
+        assert rates["fisher"] > ALLOWED, rates
+
+
+@pytest.mark.parametrize("between_sd", [0.05, 0.10])
+def test_the_equivalence_test_reproduces_a_gap_of_the_margin_at_most_at_its_nominal_rate(between_sd):
+    rng = np.random.default_rng(2)
+    a = B.simulate_rows(0.5, between_sd, K, EPISODES, SIMS, rng)
+    b = B.simulate_rows(0.5 + B.MARGIN, between_sd, K, EPISODES, SIMS, rng)
+    n = np.full(K, EPISODES)
+    held = np.mean([B.equal(B.PolicyValues.of_counts(np.c_[x, n]), B.PolicyValues.of_counts(np.c_[y, n])).outcome
+                    == "holds" for x, y in zip(a, b)])
+    assert held <= ALLOWED
