@@ -200,6 +200,14 @@ def test_markdown_keeps_small_p_values_readable():
     assert "| 1 | 5.8e-05 | a |" in md and "| 2 | 0.000 | — |" in md and "| 3 | 0.123 | c |" in md
 
 
+def test_csv_keeps_p_values_whole_and_rounds_other_floats(tmp_path):
+    table = pl.DataFrame({"SR": [0.123456], "p": [2.1e-06], "p vs baseline": [0.0123456789], "Note": [None]})
+    tables.write_csv(table, tmp_path / "t.csv")
+    back = pl.read_csv(tmp_path / "t.csv")
+    # exact: the shortest decimal that parses back to the same float, and 4 decimals as written
+    assert back.row(0) == (0.1235, 2.1e-06, 0.0123456789, None)
+
+
 def test_summary_prints_table5_1_then_the_findings_built_then_the_other_tables(tmp_path):
     from ocpipe.study.summary import _tables_in_order
 

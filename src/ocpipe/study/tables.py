@@ -51,8 +51,11 @@ def table5_2(methods: dict[str, pl.DataFrame], always: tuple[str, ...] = ()) -> 
 
 
 def write_csv(table: pl.DataFrame, path) -> None:
+    """Floats to 4 decimals, but p-values (a column named 'p' or 'p ...') at full precision: 0.0000 would hide a
+    p of 2.1e-06, and a reader comparing p against a threshold needs the number itself."""
+    p_values = [c for c in table.columns if (c == "p" or c.startswith("p ")) and table[c].dtype.is_float()]
     with atomic_path(path) as tmp:
-        table.write_csv(tmp, float_precision=4)
+        table.with_columns(pl.col(p_values).cast(pl.String)).write_csv(tmp, float_precision=4)
 
 
 @dataclass
