@@ -192,7 +192,7 @@ def test_a_killed_run_with_a_scenes_readout_resumes_identically_without_refittin
     monkeypatch.setattr(readout, "fit_readout", lambda *a, **k: fits.append(1))
     resumed = train(policy, 0, feats, frames, tmp_path / "resumed", progress=False, scenes_path=tmp_path / "s.zarr")
     assert fits == []  # the read-out came back with the resume state
-    assert resumed.drop("seconds").equals(full.drop("seconds"))
+    assert resumed.drop("seconds").equals(full.drop("seconds"))  # one-cpu: two trainings' losses
     a = torch.load(tmp_path / "full" / "checkpoints" / "epoch_0004.pt", weights_only=False)
     b = torch.load(tmp_path / "resumed" / "checkpoints" / "epoch_0004.pt", weights_only=False)
     # every weight and statistic, the read-out's input statistics fitted over demos and scenes among them

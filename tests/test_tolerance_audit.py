@@ -22,13 +22,17 @@ def test_x(a, b, path, other):
     assert path.read_bytes() == other.read_bytes()  # one-cpu: same machine
     assert a == pytest.approx(0.1)  # exact: a decimal
     assert a == 1  # a plain comparison of values is not a tolerance
-    assert abs(a - b) < 1e-3
+    assert abs(a - b) < 1e-3  # not exact: a clause must open with its kind
     assert stats.equal(a, b) and torch.equal(a, b)  # a project function that shares torch's name is no comparison
+    assert frame.equals(other) and np.allclose(a, b)  # exact: copies; derived: two kinds, in order
+    assert np.isclose(a, b) and np.isclose(b, a)  # derived: the last tag stands for the rest
 '''
     rows = audit(source)
-    assert [(line, what) for line, what, _ in rows] == [(3, "assert_allclose"), (5, "assert_close"), (7, "file =="),
-                                                        (8, "approx"), (10, "abs(...) <"), (11, "equal")]
-    assert [kind for *_, kind in rows] == [None, "derived", "one-cpu", "exact", None, None]
+    assert [(line, what) for line, what, _ in rows] == [
+        (3, "assert_allclose"), (5, "assert_close"), (7, "file =="), (8, "approx"), (10, "abs(...) <"),
+        (11, "equal"), (12, "equals"), (12, "allclose"), (13, "isclose"), (13, "isclose")]
+    assert [kind for *_, kind in rows] == [None, "derived", "one-cpu", "exact", None, None, "exact", "derived",
+                                           "derived", "derived"]
 
 
 def test_the_derived_bound_grows_with_the_sum_and_holds_for_a_real_one():

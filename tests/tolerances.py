@@ -1,15 +1,19 @@
-"""How the tests compare numbers: every comparison in tests/ is one of three kinds, named by a tag in a comment on
-its statement or in the comment lines just above it. tests/test_tolerance_audit.py fails on a comparison without
-one; `python tests/tolerances.py` lists them all and prints the tally.
+"""How the tests compare numbers: every comparison in tests/ is one of three kinds, named by a tag that opens a
+comment (or a '; '-separated clause of one) on its statement or in the comment lines just above it; a statement
+with several comparisons takes its tags in order, the last tag standing for the rest. tests/test_tolerance_audit.py
+fails on a comparison without one; `python tests/tolerances.py` prints the tally (-v: every comparison).
 
-  exact:    equal by construction: copies, integer or decimal-exact arithmetic, or the same operations in the same
-            order on the same inputs, so any CPU gives the same bits. Compared with == (a tolerance only where the
-            expected side is written in decimal and so rounds, e.g. 0.1).
-  one-cpu:  exact on one CPU kind only: float kernels (vector width, FMA, thread split) decide the last bits, so the
-            comparison is between two runs on the same machine; what is stable across CPUs is compared apart.
-  derived:  a tolerance that follows from the dtype's epsilon and the problem size (reduction_atol), in float64
-            wherever the test checks that two computations are the same function, so float32 round-off is no part
-            of what it checks. Never a number fitted to the last failure.
+  exact:    equal by construction, so the comparison holds on every CPU: copies, integer or decimal-exact
+            arithmetic, or the very same operations on the same inputs in one process (the bits themselves may
+            differ between CPUs; both sides differ alike). Compared with == (a tolerance only where the expected
+            side is written in decimal and so rounds, e.g. 0.1).
+  one-cpu:  exact on one CPU kind only: two runs (processes, jobs, trainings) whose float kernels (vector width,
+            FMA, thread split) decide the last bits, compared only where both ran on the same machine; what is
+            stable across CPUs is compared apart (tests/golden.py).
+  derived:  a tolerance that follows from what sets it: for round-off, the dtype's epsilon and the problem size
+            (reduction_atol), in float64 wherever the test checks that two computations are the same function, so
+            float32 round-off is no part of what it checks; for a physical or sampling margin, the quantity that
+            sets it (a cube's half size, a sampling SD). Never a number fitted to the last failure.
 """
 
 from __future__ import annotations
@@ -28,10 +32,11 @@ EPS64 = float(np.finfo(np.float64).eps)
 EPS32 = float(np.finfo(np.float32).eps)
 EPS16 = float(np.finfo(np.float16).eps)
 KINDS = ("exact", "one-cpu", "derived")
-TAG = re.compile(r"#.*?\b(exact|one-cpu|derived):")
+TAG = re.compile(r"^\s*(exact|one-cpu|derived):")  # at the start of a comment or of a '; ' clause
 # calls that compare numbers (by name, whatever module they come from)
 COMPARING_CALLS = {"allclose", "assert_allclose", "assert_close", "approx", "isclose", "assert_array_equal",
-                   "array_equal", "equal", "assert_frame_equal", "assert_array_almost_equal"}
+                   "array_equal", "equal", "equals", "assert_frame_equal", "assert_series_equal",
+                   "assert_array_almost_equal"}
 ARRAY_MODULE_ONLY = {"equal", "array_equal"}
 READS_A_FILE = {"read_bytes", "read_text"}
 
@@ -47,7 +52,9 @@ def reduction_atol(n: int, magnitude: float, depth: int = 1, eps: float = EPS64)
     """How far two evaluation orders of the same computation may differ: ``depth`` reductions in sequence, each a sum
     of ``n`` terms no larger than ``magnitude``. One such sum is off by at most gamma_(n-1) * sum|x_i| <= gamma_n *
     n * magnitude (Higham, Accuracy and Stability of Numerical Algorithms, 2002, eq. 4.4); two orders differ by
-    twice that, and errors carried through later reductions add one such term per reduction."""
+    twice that, and errors carried through later reductions add one such term per reduction. For one sum this is
+    a bound; through a network (norms divide by a spread, weights scale) it is an estimate, which is why the
+    float64 checks that use it sit some 1e5 below it and still many orders below any wrong answer."""
     return 2 * depth * gamma(n, eps) * n * magnitude
 
 
@@ -76,19 +83,19 @@ def _reads_a_file(node: ast.AST) -> bool:
     return any(isinstance(n, ast.Call) and _called_name(n) in READS_A_FILE for n in ast.walk(node))
 
 
-def comparisons(source: str) -> list[tuple[int, str]]:
-    """(line, what) of every numeric comparison (a call in COMPARING_CALLS, or abs(a - b) < tolerance) and every
-    file compared with == or != (a golden or a rerun compared byte for byte) in a test module's source."""
+def comparisons(source: str) -> list[tuple[int, int, str]]:
+    """(line, column, what) of every numeric comparison (a call in COMPARING_CALLS, or abs(a - b) < tolerance) and
+    every file compared with == or != (a golden or a rerun compared byte for byte) in a test module's source."""
     found = []
     for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.Call) and _compares(node):
-            found.append((node.lineno, _called_name(node)))
+            found.append((node.lineno, node.col_offset, _called_name(node)))
         elif isinstance(node, ast.Compare) and any(isinstance(op, (ast.Eq, ast.NotEq)) for op in node.ops) \
                 and _reads_a_file(node):
-            found.append((node.lineno, "file =="))
+            found.append((node.lineno, node.col_offset, "file =="))
         elif isinstance(node, ast.Compare) and isinstance(node.left, ast.Call) and _called_name(node.left) == "abs" \
                 and any(isinstance(op, (ast.Lt, ast.LtE)) for op in node.ops):
-            found.append((node.lineno, "abs(...) <"))  # a tolerance written out by hand
+            found.append((node.lineno, node.col_offset, "abs(...) <"))  # a tolerance written out by hand
     return sorted(set(found))
 
 
@@ -98,27 +105,38 @@ def _statements(tree: ast.AST) -> list[ast.stmt]:
                                                                                           ast.Try, ast.AsyncWith))]
 
 
+def tags(comment: str) -> list[str]:
+    """The kinds a comment names, in order: each clause (split at ';') that opens with 'exact:', 'one-cpu:' or
+    'derived:' ('# not exact: ...' names none)."""
+    return [m.group(1) for clause in comment.lstrip("#").split(";") for m in [TAG.match(clause)] if m]
+
+
 def audit(source: str) -> list[tuple[int, str, str | None]]:
-    """(line, what, kind) for each comparison in ``source``; kind None where no tag names it. A tag counts on any
-    line of the smallest statement holding the comparison, or in the comment lines right above that statement."""
+    """(line, what, kind) for each comparison in ``source``; kind None where no tag names it. Tags count on the
+    lines of the smallest statement holding the comparison and in the comment lines right above it, in order."""
     comments = {}
     for tok in tokenize.generate_tokens(io.StringIO(source).readline):
         if tok.type == tokenize.COMMENT:
             comments[tok.start[0]] = tok.string
     lines = source.splitlines()
     statements = _statements(ast.parse(source))
+    found = comparisons(source)
+
+    def holding(line):
+        inside = [s for s in statements if s.lineno <= line <= (s.end_lineno or s.lineno)]
+        return min(inside, key=lambda s: (s.end_lineno or s.lineno) - s.lineno) if inside else None
+
     out = []
-    for line, what in comparisons(source):
-        holding = [s for s in statements if s.lineno <= line <= (s.end_lineno or s.lineno)]
-        stmt = min(holding, key=lambda s: (s.end_lineno or s.lineno) - s.lineno) if holding else None
+    for line, col, what in found:
+        stmt = holding(line)
         first, last = (stmt.lineno, stmt.end_lineno or stmt.lineno) if stmt else (line, line)
-        span = list(range(first, last + 1))
-        above = first - 1
-        while above >= 1 and lines[above - 1].lstrip().startswith("#"):
-            span.append(above)
+        above = first
+        while above > 1 and lines[above - 2].lstrip().startswith("#"):
             above -= 1
-        kinds = [m.group(1) for n in span if n in comments for m in [TAG.search(comments[n])] if m]
-        out.append((line, what, kinds[0] if kinds else None))
+        named = [k for n in range(above, last + 1) if n in comments for k in tags(comments[n])]
+        siblings = [(ln, c) for ln, c, _ in found if holding(ln) is stmt]
+        i = siblings.index((line, col))
+        out.append((line, what, named[min(i, len(named) - 1)] if named else None))
     return out
 
 
