@@ -26,13 +26,17 @@ def test_x(a, b, path, other):
     assert stats.equal(a, b) and torch.equal(a, b)  # a project function that shares torch's name is no comparison
     assert frame.equals(other) and np.allclose(a, b)  # exact: copies; derived: two kinds, in order
     assert np.isclose(a, b) and np.isclose(b, a)  # derived: the last tag stands for the rest
+    assert np.linalg.norm(a - b) < 2.0 and len(a) < 3  # derived: a radius; a count is no gap
+    while not np.allclose(a, b):  # one-cpu: a loop's header line stands alone
+        a = b  # exact: not the header's
 '''
     rows = audit(source)
     assert [(line, what) for line, what, _ in rows] == [
-        (3, "assert_allclose"), (5, "assert_close"), (7, "file =="), (8, "approx"), (10, "abs(...) <"),
-        (11, "equal"), (12, "equals"), (12, "allclose"), (13, "isclose"), (13, "isclose")]
+        (3, "assert_allclose"), (5, "assert_close"), (7, "file =="), (8, "approx"), (10, "gap <"),
+        (11, "equal"), (12, "equals"), (12, "allclose"), (13, "isclose"), (13, "isclose"), (14, "gap <"),
+        (15, "allclose")]
     assert [kind for *_, kind in rows] == [None, "derived", "one-cpu", "exact", None, None, "exact", "derived",
-                                           "derived", "derived"]
+                                           "derived", "derived", "derived", "one-cpu"]
 
 
 def test_the_derived_bound_grows_with_the_sum_and_holds_for_a_real_one():

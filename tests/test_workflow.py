@@ -82,7 +82,9 @@ def test_frames_stores_meet_the_contract(tiny_run):
 def test_stackcube_native_has_a_moving_hand_camera_and_goal_on_cube_b(tiny_run):
     root = frames_store.open_store(tiny_run / "results" / "frames" / "StackCube-v1_native_64.zarr")
     E = root["cam_extrinsic_per_frame"][...]
-    assert np.ptp(E[:, 1], axis=0).max() > 0.05 and np.ptp(E[:, 0], axis=0).max() < 1e-6  # hand moves, base does not
+    # the hand camera moves, the base camera does not; derived: the base camera's float32 pose, recomputed each frame
+    # from one mount, may round by a few float32 operations on values under 1
+    assert np.ptp(E[:, 1], axis=0).max() > 0.05 and np.ptp(E[:, 0], axis=0).max() < reduction_atol(4, 1.0, eps=EPS32)
     # approx goal needs a hand-entered model, which the hand camera cannot have
     assert np.isnan(root["goal2d_approx"][:, 2:]).all() and np.isfinite(root["goal2d_approx"][:, :2]).all()
     goal, obj = root["goal_pos"][...], root["obj_pos"][...]
@@ -104,6 +106,8 @@ def test_projected_goal_lands_on_the_rendered_marker(tiny_run):
         for i in np.flatnonzero(counts >= max(4, counts.max() - 1))[:10]:
             vs, us = np.nonzero(green[i])
             centroid = np.array([us.mean() + 0.5, vs.mean() + 0.5])
+            # derived: from the image, not round-off: the centroid of a marker a few pixels wide, in whole pixels and
+            # clipped at its edges, within 2 px of its projected centre (2 px is about 2 degrees of view at 64 px)
             assert np.linalg.norm(centroid - g[i, 2 * cam : 2 * cam + 2]) < 2.0
             checked += 1
     assert checked >= 2

@@ -38,6 +38,7 @@ COMPARING_CALLS = {"allclose", "assert_allclose", "assert_close", "approx", "isc
                    "array_equal", "equal", "equals", "assert_frame_equal", "assert_series_equal",
                    "assert_array_almost_equal"}
 ARRAY_MODULE_ONLY = {"equal", "array_equal"}
+GAP_CALLS = {"abs", "norm", "ptp", "dist"}
 READS_A_FILE = {"read_bytes", "read_text"}
 
 
@@ -84,8 +85,9 @@ def _reads_a_file(node: ast.AST) -> bool:
 
 
 def comparisons(source: str) -> list[tuple[int, int, str]]:
-    """(line, column, what) of every numeric comparison (a call in COMPARING_CALLS, or abs(a - b) < tolerance) and
-    every file compared with == or != (a golden or a rerun compared byte for byte) in a test module's source."""
+    """(line, column, what) of every numeric comparison (a call in COMPARING_CALLS, or a gap written out by hand:
+    abs(a - b) < tolerance, norm(...) <= radius) and every file compared with == or != (a golden or a rerun compared
+    byte for byte) in a test module's source."""
     found = []
     for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.Call) and _compares(node):
@@ -93,16 +95,25 @@ def comparisons(source: str) -> list[tuple[int, int, str]]:
         elif isinstance(node, ast.Compare) and any(isinstance(op, (ast.Eq, ast.NotEq)) for op in node.ops) \
                 and _reads_a_file(node):
             found.append((node.lineno, node.col_offset, "file =="))
-        elif isinstance(node, ast.Compare) and isinstance(node.left, ast.Call) and _called_name(node.left) == "abs" \
-                and any(isinstance(op, (ast.Lt, ast.LtE)) for op in node.ops):
-            found.append((node.lineno, node.col_offset, "abs(...) <"))  # a tolerance written out by hand
+        elif isinstance(node, ast.Compare) and any(isinstance(op, (ast.Lt, ast.LtE)) for op in node.ops) \
+                and _measures_a_gap(node.left):
+            found.append((node.lineno, node.col_offset, "gap <"))  # a tolerance written out by hand
     return sorted(set(found))
 
 
+def _measures_a_gap(node: ast.AST) -> bool:
+    """Whether an expression measures how far apart two things are: a difference, or abs, a norm, ptp, dist."""
+    return any(isinstance(n, ast.BinOp) and isinstance(n.op, ast.Sub)
+               or isinstance(n, ast.Call) and _called_name(n) in GAP_CALLS for n in ast.walk(node))
+
+
+COMPOUND = (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef, ast.If, ast.For, ast.AsyncFor, ast.While, ast.With,
+            ast.AsyncWith, ast.Try, ast.TryStar, ast.Match)
+
+
 def _statements(tree: ast.AST) -> list[ast.stmt]:
-    return [n for n in ast.walk(tree) if isinstance(n, ast.stmt) and not isinstance(n, (ast.FunctionDef, ast.ClassDef,
-                                                                                          ast.With, ast.For, ast.If,
-                                                                                          ast.Try, ast.AsyncWith))]
+    """The simple statements (a compound one's header line stands alone: see audit)."""
+    return [n for n in ast.walk(tree) if isinstance(n, ast.stmt) and not isinstance(n, COMPOUND)]
 
 
 def tags(comment: str) -> list[str]:
@@ -134,7 +145,8 @@ def audit(source: str) -> list[tuple[int, str, str | None]]:
         while above > 1 and lines[above - 2].lstrip().startswith("#"):
             above -= 1
         named = [k for n in range(above, last + 1) if n in comments for k in tags(comments[n])]
-        siblings = [(ln, c) for ln, c, _ in found if holding(ln) is stmt]
+        # in a compound statement's header (if, while, ...), the comparisons of that one line
+        siblings = [(ln, c) for ln, c, _ in found if holding(ln) is stmt and (stmt is not None or ln == line)]
         i = siblings.index((line, col))
         out.append((line, what, named[min(i, len(named) - 1)] if named else None))
     return out

@@ -8,10 +8,11 @@ exact test) sees only the first, so it calls rows different that are not (simula
 
 Here each policy contributes one number (its success rate, or a share, or a mean), and rows are compared with
 Welch's t-test on those K numbers: its variance is the spread between policies, which holds both sources, and it
-needs no equal variances or normal episodes (a policy's rate is a mean of 40 or more episodes). Where a row's K
-rates happen to agree more closely than its episodes alone allow, its variance is floored at the binomial variance
-of one policy's rate, p (1 - p) / n at the two rows' pooled rate p: the episode noise every policy carries, which a
-small K can hide (five policies at 0 of 40 would otherwise be 'resolved' below five at 1 of 40 with p = 0).
+needs no equal variances. Where a row's K rates happen to agree more closely than its episodes alone allow, its
+variance is floored at the binomial variance of one policy's rate, p (1 - p) mean(1 / n) at the two rows' pooled
+rate p: the episode noise every policy carries, which a small K can hide (five policies at 0 of 40 would otherwise
+be 'resolved' below five at 1 of 40 with p = 0). simulate_false_positives measures how close to nominal the test
+stays where rates are far from normal (docs/study.md gives the figures).
 
 'About the same' claims are tested for equivalence (two one-sided tests, TOST) within a margin, and 'at most'
 claims for non-inferiority with that margin: such a claim counts only when its test resolves it, never merely
