@@ -92,7 +92,7 @@ def training_steps(device, steps=200) -> tuple[bool, float]:
         opt.zero_grad()
         loss.backward()
         opt.step()
-        losses.append(float(loss))
+        losses.append(loss.item())
     if device.type == "cuda":
         torch.cuda.synchronize()
     ms = 1000 * (time.perf_counter() - start) / (steps - 10)
