@@ -47,6 +47,26 @@ def test_equal_and_at_most_claims_hold_only_when_their_test_resolves_them():
     assert B.at_most(row(20, 24, 18, 22, 21), row(8, 10, 6, 9, 7)).outcome == "violated"
 
 
+def test_claims_against_a_named_share_hold_only_when_resolved():
+    assert B.at_most_share(row(0, 1, 0, 0, 1), 0.05).outcome == "holds"  # 1 % of 200, five policies: near zero
+    assert B.at_most_share(row(1, 3, 2, 4, 2), 0.05).outcome == "not contradicted"  # 6 %: cannot tell
+    assert B.at_most_share(row(10, 14, 12, 9, 11), 0.05).outcome == "violated"  # 28 %
+    assert B.above_share(row(30, 28, 32, 29, 31), 0.5).outcome == "holds"  # 75 %
+    assert B.above_share(row(21, 23, 19, 22, 20), 0.5).outcome == "unresolved"  # 52.5 %
+    assert B.above_share(row(10, 12, 8, 11, 9), 0.5).outcome == "violated"  # 25 %
+    with pytest.raises(ValueError, match="at least 2"):
+        B.above_share(row(30), 0.5)
+
+
+@pytest.mark.parametrize("between_sd", [0.05, 0.10])
+def test_a_row_at_the_named_share_is_called_above_it_at_most_at_the_nominal_rate(between_sd):
+    rng = np.random.default_rng(3)
+    n = np.full(K, EPISODES)
+    at = B.simulate_rows(0.5, between_sd, K, EPISODES, SIMS, rng)
+    held = np.mean([B.above_share(B.PolicyValues.of_counts(np.c_[x, n]), 0.5).outcome == "holds" for x in at])
+    assert held <= ALLOWED
+
+
 def test_verdicts_combine_outcomes_worst_first():
     assert B.verdict(["holds", "holds"]) == "reproduced"
     assert B.verdict(["holds", "not contradicted"]) == "not contradicted, could not resolve ±10 points"

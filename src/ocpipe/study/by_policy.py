@@ -148,6 +148,37 @@ def equal(a: PolicyValues, b: PolicyValues, margin: float = MARGIN, alpha: float
     return Result(f"TOST over policies, margin {margin:g}", p, outcome, w.resolvable_margin(alpha))
 
 
+def _against(a: PolicyValues, share: float) -> Welch:
+    """One row's mean against a fixed ``share``, as a one-sample t over its policies (floored at the binomial noise
+    of a policy at that share, the rate the claim's boundary puts it at)."""
+    if a.policies < 2:
+        raise ValueError(f"a row of {a.policies} policy: the spread between policies needs at least 2 (config "
+                         "`replicates`)")
+    return Welch(a.mean - share, float(np.sqrt(a.variance(share) / a.policies)), float(a.policies - 1))
+
+
+def at_most_share(a: PolicyValues, share: float, alpha: float = ALPHA) -> Result:
+    """Claim: a's mean is at most ``share`` (e.g. 'near zero': 5 %, the bound the claim names). Holds when resolved
+    below it; violated when resolved above; else not contradicted."""
+    w = _against(a, share)
+    p = w.p_below()
+    outcome = "violated" if w.p_above() < alpha else "holds" if p < alpha else "not contradicted"
+    return Result(f"t over policies against {share:g}, one-sided", p, outcome, w.resolvable_gap(alpha))
+
+
+def above_share(a: PolicyValues, share: float, alpha: float = ALPHA) -> Result:
+    """Claim: a's mean is above ``share`` (e.g. 'mostly': 50 %). Holds when resolved; violated when resolved below."""
+    w = _against(a, share)
+    p, p_opposite = w.p_above(), w.p_below()
+    if p_opposite < alpha:
+        outcome = "violated"
+    elif p < alpha:
+        outcome = "holds"
+    else:
+        outcome = "unresolved" if w.difference > 0 else "tie" if w.difference == 0 else "opposite"
+    return Result(f"t over policies against {share:g}, one-sided", p, outcome, w.resolvable_gap(alpha))
+
+
 def verdict(outcomes: list[str], margin: float = MARGIN) -> str:
     """A finding's verdict from its checks' outcomes, worst first."""
     found = set(outcomes)
