@@ -21,7 +21,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 
 from policy_stores import policy_settings  # noqa: E402
-from tolerances import reduction_atol  # noqa: E402
+from tolerances import decoder_atols  # noqa: E402
 
 from ocpipe.policy.model import PROPRIO_DIMS, SequencePolicy, loss_terms  # noqa: E402
 from ocpipe.util.devices import pick_device  # noqa: E402
@@ -32,12 +32,6 @@ def inputs(policy, device, dtype, B=3, K=7, D=16, seed=0):
     T, C, P = policy["window"], len(policy["cameras"]), PROPRIO_DIMS[policy["proprio"]]
     shapes = [(B, T, C, K, D), (B, T, P), (B, T, 4)]
     return [torch.randn(*s, generator=g, dtype=dtype).to(device) for s in shapes]
-
-
-def decoder_atol(model, seq, magnitude):
-    """tests/test_policy.py's bound: six chained reductions a layer over max(4 W, L) terms, in float64."""
-    W, L = seq.shape[-1], seq.shape[1]
-    return reduction_atol(max(4 * W, L), magnitude, depth=6 * len(model.decoder.layers) + 1)
 
 
 def equivalence(device) -> bool:
@@ -52,11 +46,9 @@ def equivalence(device) -> bool:
         for name, model in (("cpu", cpu), ("cuda", gpu)):
             seq = model.tokens(*inputs(policy, next(model.parameters()).device, torch.float64))[0]
             full, fast = model.action_states(seq)[:, -1], model.current_action_state(seq)
-            atol = decoder_atol(model, seq, float(seq.detach().abs().max()))
+            atol, grad_atol = decoder_atols(layers, seq.shape, float(seq.detach().abs().max()),
+                                            float(full.detach().abs().max()))
             grads = [torch.autograd.grad(o.square().sum(), list(model.decoder.parameters())) for o in (full, fast)]
-            B, L, W = seq.shape
-            scale = float(seq.detach().abs().max()) * 2 * float(full.detach().abs().max())
-            grad_atol = reduction_atol(max(4 * W, B * L), scale, depth=2 * (6 * layers + 1))
             d_out = float((fast - full).detach().abs().max())
             d_grad = max(float((a - b).abs().max()) for a, b in zip(*grads))
             seqs[name], fast_of[name] = seq.detach(), model.current_action_state

@@ -59,6 +59,19 @@ def reduction_atol(n: int, magnitude: float, depth: int = 1, eps: float = EPS64)
     return 2 * depth * gamma(n, eps) * n * magnitude
 
 
+def decoder_atols(layers: int, shape: tuple[int, int, int], seq_max: float, out_max: float) -> tuple[float, float]:
+    """(outputs, weight gradients): how far two float64 evaluation orders of the policy's decoder may differ, on a
+    (B, L, W) sequence whose largest entry is ``seq_max``, of the loss sum(out^2) whose output's largest is
+    ``out_max``. Each layer chains about six reductions (two norms, scores, softmax, values, feed-forward), the final
+    norm one more, over at most max(4 W, L) terms. A weight's gradient sums, over the B x L rows, an activation (of
+    the sequence's size, the norms keep it there) times an upstream gradient (of the size of the loss's own,
+    2 |out|), after the backward pass has chained as many reductions again."""
+    B, L, W = shape
+    depth = 6 * layers + 1
+    return (reduction_atol(max(4 * W, L), seq_max, depth=depth),
+            reduction_atol(max(4 * W, B * L), seq_max * 2 * out_max, depth=2 * depth))
+
+
 def mean_atol(n: int, magnitude: float, eps: float = EPS64) -> float:
     """reduction_atol for the mean of ``n`` terms no larger than ``magnitude`` (the sum's bound over n)."""
     return reduction_atol(n, magnitude, eps=eps) / n

@@ -116,16 +116,25 @@ class Result:
     resolvable_gap: float
 
 
+def _order(p: float, p_opposite: float, leaning: float, alpha: float) -> str:
+    """An order claim's outcome; ``leaning``: > 0 when the figures lean the claimed way, < 0 the other, 0 level."""
+    if p_opposite < alpha:
+        return "violated"
+    if p < alpha:
+        return "holds"
+    return "unresolved" if leaning > 0 else "tie" if leaning == 0 else "opposite"
+
+
+def _bounded(p: float, p_violated: float, alpha: float) -> str:
+    """An 'at most' claim's outcome: it needs its own test resolved, and fails where the opposite is resolved."""
+    return "violated" if p_violated < alpha else "holds" if p < alpha else "not contradicted"
+
+
 def less(a: PolicyValues, b: PolicyValues, alpha: float = ALPHA) -> Result:
     """Claim: a's mean < b's. Holds when resolved; violated when the opposite is resolved."""
     w = Welch.of(a, b)
-    p, p_opposite = w.p_below(), w.p_above()
-    if p_opposite < alpha:
-        outcome = "violated"
-    elif p < alpha:
-        outcome = "holds"
-    else:
-        outcome = "unresolved" if w.difference < 0 else "tie" if w.difference == 0 else "opposite"
+    p = w.p_below()
+    outcome = _order(p, w.p_above(), -w.difference, alpha)
     return Result("Welch t over policies, one-sided", p, outcome, w.resolvable_gap(alpha))
 
 
@@ -134,7 +143,7 @@ def at_most(a: PolicyValues, b: PolicyValues, margin: float = MARGIN, alpha: flo
     resolved; else not contradicted."""
     w = Welch.of(a, b)
     p = w.p_below(margin)
-    outcome = "violated" if w.p_above() < alpha else "holds" if p < alpha else "not contradicted"
+    outcome = _bounded(p, w.p_above(), alpha)
     return Result(f"Welch t over policies, non-inferiority margin {margin:g}", p, outcome, w.resolvable_gap(alpha))
 
 
@@ -162,20 +171,15 @@ def at_most_share(a: PolicyValues, share: float, alpha: float = ALPHA) -> Result
     below it; violated when resolved above; else not contradicted."""
     w = _against(a, share)
     p = w.p_below()
-    outcome = "violated" if w.p_above() < alpha else "holds" if p < alpha else "not contradicted"
+    outcome = _bounded(p, w.p_above(), alpha)
     return Result(f"t over policies against {share:g}, one-sided", p, outcome, w.resolvable_gap(alpha))
 
 
 def above_share(a: PolicyValues, share: float, alpha: float = ALPHA) -> Result:
     """Claim: a's mean is above ``share`` (e.g. 'mostly': 50 %). Holds when resolved; violated when resolved below."""
     w = _against(a, share)
-    p, p_opposite = w.p_above(), w.p_below()
-    if p_opposite < alpha:
-        outcome = "violated"
-    elif p < alpha:
-        outcome = "holds"
-    else:
-        outcome = "unresolved" if w.difference > 0 else "tie" if w.difference == 0 else "opposite"
+    p = w.p_above()
+    outcome = _order(p, w.p_below(), w.difference, alpha)
     return Result(f"t over policies against {share:g}, one-sided", p, outcome, w.resolvable_gap(alpha))
 
 
