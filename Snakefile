@@ -60,6 +60,13 @@ rule stackcube:
         paths.FIGURE.format(figure="fig5_7"),
 
 
+rule two_builds:
+    """The main job's and StackCube's findings (1-3, 11-12) from two independent builds of K policies each (config
+    `replicate_seed_offset` and offset + K), side by side (results/tables/two_builds_*.md)."""
+    input:
+        expand(f"{paths.TABLE_DIR}/two_builds_{{scope}}.md", scope=("findings_main", "findings_stackcube")),
+
+
 rule compute:
     """Where the whole study's time went (results/tables/compute.{csv,md}), from every rule's benchmark file; it
     runs last, after everything else `all` builds."""

@@ -12,6 +12,13 @@ def default_config():
     return cfgmod.load(REPO / "config" / "config.yaml")
 
 
+@pytest.fixture
+def one_policy_config(default_config):
+    """The default profile with one policy per row and 3 stability runs each: the study's own shape, whose tables
+    and tests read episodes alone."""
+    return {**default_config, "replicates": 1, "evaluation": {**default_config["evaluation"], "stability_runs": 3}}
+
+
 @pytest.fixture(autouse=True)
 def torch_threads():
     """Training and encoding set torch's thread count for the process they run in; put the suite's own back after

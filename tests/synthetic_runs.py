@@ -7,6 +7,7 @@ from pathlib import Path
 import polars as pl
 
 from ocpipe.config.experiments import resolve, saved_epochs
+from ocpipe.paths import split_policy
 from ocpipe.study import targets
 
 
@@ -22,23 +23,32 @@ def _classes(counts: dict[str, int]) -> pl.DataFrame:
     return pl.DataFrame({"seed": list(range(len(labels))), "trivial": [False] * len(labels), "class": labels})
 
 
-def write_rows(config, runs: Path, rows: dict[str, tuple[list[int], int, dict[str, int]]]) -> None:
-    """Per experiment: (successes per 40-episode run, mean length, failure-run class counts)."""
-    for exp, (per_run, steps, classes) in rows.items():
-        for r, f in enumerate(targets.artefacts(config, exp, "stability", str(runs))):
-            Path(f).parent.mkdir(parents=True, exist_ok=True)
-            _episodes(per_run[r], 40, steps, r).write_parquet(f)
-        _classes(classes).write_parquet(targets.artefacts(config, exp, "failures", str(runs))[0])
-        train_seeds = targets.artefacts(config, exp, "train_seeds", str(runs))[0]
-        _episodes(per_run[0], 40, steps, 0).write_parquet(train_seeds)
-        # a training-time run of 30 episodes with run 0's success rate (Table 5.5)
-        training_time = targets.artefacts(config, exp, "training_time", str(runs))[0]
-        _episodes(round(per_run[0] * 30 / 40), 30, steps, 0).write_parquet(training_time)
-        epochs = saved_epochs(resolve(config, exp))
-        for epoch, f in zip(epochs, targets.artefacts(config, exp, "sweep", str(runs)), strict=True):
-            Path(f).parent.mkdir(parents=True, exist_ok=True)
-            _episodes(per_run[0], 6, steps, 0).with_columns(checkpoint=pl.lit(epoch)).write_parquet(f)
-        Path(targets.artefacts(config, exp, "best", str(runs))[0]).write_text(json.dumps({"epoch": epochs[-1]}))
+def write_rows(config, runs: Path, rows: dict) -> None:
+    """Per experiment, for each of its policies (``targets.policies``): (successes per 40-episode run, mean length,
+    failure-run class counts). A value is one such tuple, written for every policy, or a list of one per policy."""
+    for exp, specs in rows.items():
+        pids = targets.policies(config, exp)
+        specs = specs if isinstance(specs, list) else [specs] * len(pids)
+        assert len(specs) == len(pids), f"{exp}: {len(specs)} specs for {len(pids)} policies"
+        for pid, spec in zip(pids, specs, strict=True):
+            _write_policy(config, runs, pid, *spec)
+
+
+def _write_policy(config, runs: Path, pid: str, per_run: list[int], steps: int, classes: dict[str, int]) -> None:
+    for r, f in enumerate(targets.artefacts(config, pid, "stability", str(runs))):
+        Path(f).parent.mkdir(parents=True, exist_ok=True)
+        _episodes(per_run[r], 40, steps, r).write_parquet(f)
+    _classes(classes).write_parquet(targets.artefacts(config, pid, "failures", str(runs))[0])
+    train_seeds = targets.artefacts(config, pid, "train_seeds", str(runs))[0]
+    _episodes(per_run[0], 40, steps, 0).write_parquet(train_seeds)
+    # a training-time run of 30 episodes with run 0's success rate (Table 5.5)
+    training_time = targets.artefacts(config, pid, "training_time", str(runs))[0]
+    _episodes(round(per_run[0] * 30 / 40), 30, steps, 0).write_parquet(training_time)
+    epochs = saved_epochs(resolve(config, split_policy(pid)[0]))
+    for epoch, f in zip(epochs, targets.artefacts(config, pid, "sweep", str(runs)), strict=True):
+        Path(f).parent.mkdir(parents=True, exist_ok=True)
+        _episodes(per_run[0], 6, steps, 0).with_columns(checkpoint=pl.lit(epoch)).write_parquet(f)
+    Path(targets.artefacts(config, pid, "best", str(runs))[0]).write_text(json.dumps({"epoch": epochs[-1]}))
 
 
 def classes(near_miss, no_grasp, success, n=120):

@@ -25,12 +25,16 @@ def test_an_order_holds_only_when_the_policies_resolve_it():
 
 def test_rows_that_agree_closely_keep_their_episode_noise():
     # five policies each at 0/40 against five each at 1/40: no spread between policies, so Welch's t alone would
-    # resolve 0 % below 2.5 % with p = 0; floored at the binomial variance of a policy at the pooled 1.25 %, the test
-    # is what 400 episodes can say
+    # resolve 0 % below 2.5 % with p = 0; floored at the binomial variance of a policy at the pooled rate (5.5 of
+    # 401, half a success added), the test is what 400 episodes can say
     a, b = row(0, 0, 0, 0, 0), row(1, 1, 1, 1, 1)
     w = B.Welch.of(a, b)
-    assert w.se == pytest.approx(np.sqrt(2 * 0.0125 * 0.9875 / 40 / 5), rel=1e-12)  # derived: a few float64 ops
+    p = 5.5 / 401
+    assert w.se == pytest.approx(np.sqrt(2 * p * (1 - p) / 40 / 5), rel=1e-12)  # derived: a few float64 ops
     assert 0.01 < B.less(a, b).p < B.ALPHA
+    # rows that never succeed still carry episode noise: a gap between them is not resolvable at 0 points
+    none = row(0, 0, 0, 0, 0)
+    assert B.less(none, none).outcome == "tie" and B.less(none, none).resolvable_gap > 0.005  # ~1 point
 
 
 def test_equal_and_at_most_claims_hold_only_when_their_test_resolves_them():

@@ -224,17 +224,17 @@ def test_best_checkpoint_without_open_loop_error_falls_back_to_return_then_epoch
     assert jobs.best_checkpoint(files)["epoch"] == 20
 
 
-def test_report_writes_tables_from_run_files(tmp_path, default_config):
+def test_report_writes_tables_from_run_files(tmp_path, one_policy_config):
     runs = tmp_path / "runs"
     for exp, succ in (("a", [True, False]), ("b", [True, True])):
         (runs / exp / "stability").mkdir(parents=True)
         for r in range(2):
             episodes(r, succ, [50, 80]).write_parquet(runs / exp / "stability" / f"run_{r}.episodes.parquet")
     config = {
-        **default_config,
+        **one_policy_config,
         "experiments": {"a": {}, "b": {}},
         "tables": {"table5_1": {"A": "a", "B": "b"}},
-        "evaluation": {**default_config["evaluation"], "stability_runs": 2},
+        "evaluation": {**one_policy_config["evaluation"], "stability_runs": 2},
     }
     t = report.write_table(config, "table5_1", tmp_path / "t.csv", tmp_path / "t.md", runs_dir=runs)
     assert t["SR mean"].to_list() == [0.5, 1.0]
@@ -242,7 +242,7 @@ def test_report_writes_tables_from_run_files(tmp_path, default_config):
     assert "| A |" in (tmp_path / "t.md").read_text()
 
 
-def test_a_new_table_is_one_registry_entry(tmp_path, default_config, monkeypatch):
+def test_a_new_table_is_one_registry_entry(tmp_path, one_policy_config, monkeypatch):
     runs = tmp_path / "runs"
     for exp, succ in (("a", [True, False]), ("b", [False, False])):
         (runs / exp / "stability").mkdir(parents=True)
@@ -251,10 +251,10 @@ def test_a_new_table_is_one_registry_entry(tmp_path, default_config, monkeypatch
     monkeypatch.setitem(registry.TABLES, "table_dropout", registry.Table(
         "Dropout", ("stability",), tables.setting_columns("Dropout", "dropout")))
     config = {
-        **default_config,
+        **one_policy_config,
         "experiments": {"a": {"dropout": 0.0}, "b": {"dropout": 0.3}},
         "tables": {"table_dropout": {"none": "a", "0.3": "b"}},
-        "evaluation": {**default_config["evaluation"], "stability_runs": 2},
+        "evaluation": {**one_policy_config["evaluation"], "stability_runs": 2},
     }
     t = report.write_table(config, "table_dropout", tmp_path / "t.csv", tmp_path / "t.md", runs_dir=runs)
     assert t["Dropout"].to_list() == [0.0, 0.3] and t["SR mean"].to_list() == [0.5, 0.0]

@@ -33,6 +33,7 @@ TARGET = "results/tables/table5_1.csv"
 EPOCHS, SAVE_EVERY = 16, 8
 # the committed tiny study (.test/config.yaml), with what the kill tests need on top
 TINY = deep_merge(yaml.safe_load((REPO / ".test" / "config.yaml").read_text()), {
+    "replicates": 1,  # one policy per experiment: the kill tests plan exact job sets around one training job
     "tasks": ["PickCube-v1"],
     # grid 48 (the default) rather than 16: encoding then takes seconds, not 0.2 s, so the kill can land while the
     # features job writes its store

@@ -25,7 +25,8 @@ def test_rows_needing_weights_are_reported_not_built(default_config):
     assert set(skip) == {"DINO CLS", "DINO 4x4", "DINO 14x14 dense", "SPOT 14 slots"}
     assert "encoders.dino.checkpoint" in skip["DINO CLS"] and "encoders.spot" in skip["SPOT 14 slots"]
     files = targets.inputs(default_config, "table5_4")
-    assert files and all("/goal2d/" in f for f in files)  # only the offline slots_ssl row is built
+    # only the offline slots_ssl row is built, as its 5 policies
+    assert {f.split("/")[2] for f in files} == {"goal2d", "goal2d@1", "goal2d@2", "goal2d@3", "goal2d@4"}
     assert "dino_cls" not in targets.experiments_of(default_config)
 
 
@@ -84,19 +85,19 @@ def _fake_run(runs, exp, n_runs=3, epochs=(8, 16), pos_rows=85):
     (runs / exp / "best.json").write_text(json.dumps({"epoch": 16, "sweep": sweep}))
 
 
-def test_window_and_head_tables_read_checkpoints_and_sweeps(default_config, tmp_path):
+def test_window_and_head_tables_read_checkpoints_and_sweeps(one_policy_config, tmp_path):
     runs = tmp_path / "runs"
     for exp, pos in (("pure_visual", 85), ("window20", 340), ("window40", 680)):
         _fake_run(runs, exp, pos_rows=pos)
-    t = report.write_table(default_config, "table5_7", tmp_path / "t7.csv", tmp_path / "t7.md", runs_dir=runs)
+    t = report.write_table(one_policy_config, "table5_7", tmp_path / "t7.csv", tmp_path / "t7.md", runs_dir=runs)
     assert t["Sequence length"].to_list() == [85, 340, 680] and t["T"].to_list() == [5, 20, 40]
     assert t["Reward at peak"].to_list() == [4.0] * 3 and t["Best epoch"].to_list() == [16] * 3
-    epochs = default_config["policy"]["epochs"]  # one budget: the study's 680 / 300 / 150 epochs in proportion
+    epochs = one_policy_config["policy"]["epochs"]  # one budget: the study's 680 / 300 / 150 epochs in proportion
     assert t["Minutes/epoch"].to_list() == [1.0] * 3
     assert t["Epochs"].to_list() == [epochs, round(epochs * 0.44), round(epochs * 0.22)]
     for exp in ("head_flatten", "head_deepsets", "head_weighted_pool", "head_slot_transformer"):
         _fake_run(runs, exp)
-    t = report.write_table(default_config, "table5_5", tmp_path / "t5.csv", tmp_path / "t5.md", runs_dir=runs)
+    t = report.write_table(one_policy_config, "table5_5", tmp_path / "t5.csv", tmp_path / "t5.md", runs_dir=runs)
     assert t["Parameters"].to_list() == [85 * 4 + 15] * 4
     # one 30-episode training-time run per head, not the stability runs: 3 of 30 with its Wilson interval
     # exact: 3 / 30 rounds once to the double nearest 0.1; approx only because 0.1 is written in decimal
@@ -110,10 +111,10 @@ def test_window_and_head_tables_read_checkpoints_and_sweeps(default_config, tmp_
                                                                   "slot_transformer"]
 
 
-def test_figures_draw_rows_and_mark_missing_weights(default_config, tmp_path):
+def test_figures_draw_rows_and_mark_missing_weights(one_policy_config, tmp_path):
     runs = tmp_path / "runs"
     _fake_run(runs, "goal2d")
-    report.write_figure(default_config, "fig5_5", tmp_path / "fig5_5.png", runs_dir=runs)
+    report.write_figure(one_policy_config, "fig5_5", tmp_path / "fig5_5.png", runs_dir=runs)
     assert (tmp_path / "fig5_5.png").stat().st_size > 5_000
     stack = pl.DataFrame({"class": ["No Grasp", "Grasp No Stack", "Success"], "trivial": [False] * 3,
                           "grasp": [False, True, True], "lift": [False, True, True],
@@ -121,8 +122,8 @@ def test_figures_draw_rows_and_mark_missing_weights(default_config, tmp_path):
     for exp in ("stack_native", "stack_aligned"):
         (runs / exp).mkdir()
         stack.write_parquet(runs / exp / "failures.parquet")
-    report.write_figure(default_config, "fig5_7", tmp_path / "fig5_7.png", runs_dir=runs)
-    t = report.write_table(default_config, "table5_11", tmp_path / "t11.csv", tmp_path / "t11.md", runs_dir=runs)
+    report.write_figure(one_policy_config, "fig5_7", tmp_path / "fig5_7.png", runs_dir=runs)
+    t = report.write_table(one_policy_config, "table5_11", tmp_path / "t11.csv", tmp_path / "t11.md", runs_dir=runs)
     assert t["Method"].to_list() == ["Aligned (base + side, 2D goal)"]  # the study's Table 5.11: aligned only
     assert t["Grasp No Stack"].to_list() == [1] and t["Total"].to_list() == [3]
 
@@ -160,16 +161,16 @@ def test_store_names_fill_the_path_patterns():
         paths.named(paths.BEST, "PickCube-v1_dual_128")
 
 
-def test_tables_put_each_rows_figures_in_its_row(default_config, tmp_path):
+def test_tables_put_each_rows_figures_in_its_row(one_policy_config, tmp_path):
     """Rows with different success rates, lengths and failure classes: a swapped row or a wrong formula shows."""
     runs = tmp_path / "runs"
-    write_rows(default_config, runs, {
+    write_rows(one_policy_config, runs, {
         "pure_visual": ([4, 3, 5], 140, classes(near_miss=40, no_grasp=12, success=12)),
         "goal2d": ([20, 18, 22], 110, classes(near_miss=20, no_grasp=12, success=60)),
         "goal3d": ([32, 30, 31], 80, classes(near_miss=2, no_grasp=14, success=93)),
         "state_control": ([39, 40, 38], 70, classes(near_miss=1, no_grasp=0, success=117)),
     })
-    t1 = report.write_table(default_config, "table5_1", tmp_path / "t1.csv", tmp_path / "t1.md", str(runs))
+    t1 = report.write_table(one_policy_config, "table5_1", tmp_path / "t1.csv", tmp_path / "t1.md", str(runs))
     by = {r["Method"]: r for r in t1.iter_rows(named=True)}
     assert list(by) == ["Pure Visual", "2D-Spatial-Proj", "Explicit-3D-GT", "Privileged state (control)"]
     expected = {"Pure Visual": ([4, 3, 5], 140), "2D-Spatial-Proj": ([20, 18, 22], 110),
@@ -186,7 +187,7 @@ def test_tables_put_each_rows_figures_in_its_row(default_config, tmp_path):
         # one dyadic mean are exact in binary
         assert by[label]["Episode length mean"] == length + sum(i % 7 - 3 for i in range(40)) / 40
         assert (by[label]["Runs"], by[label]["Episodes per run"]) == (3, 40)
-    t2 = report.write_table(default_config, "table5_2", tmp_path / "t2.csv", tmp_path / "t2.md", str(runs))
+    t2 = report.write_table(one_policy_config, "table5_2", tmp_path / "t2.csv", tmp_path / "t2.md", str(runs))
     by2 = {r["Method"]: r for r in t2.iter_rows(named=True)}
     assert [by2[m]["Near Miss"] for m in by] == [40, 20, 2, 1] and [by2[m]["Success"] for m in by] == [12, 60, 93, 117]
     assert by2["Pure Visual"]["Near Miss %"] == 100 * 40 / 120  # exact: 4000 / 120 rounded once on both sides

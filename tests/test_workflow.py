@@ -17,6 +17,7 @@ from tolerances import EPS16, EPS32, reduction_atol
 
 from ocpipe.frames import render
 from ocpipe.frames import store as frames_store
+from ocpipe.paths import split_policy
 
 pytestmark = pytest.mark.slow  # Snakemake end to end: minutes (make test-fast leaves them out)
 
@@ -200,6 +201,10 @@ def test_train_rule_writes_checkpoints_and_log(tiny_run):
     ckpt = torch.load(run / "checkpoints" / "epoch_0002.pt", weights_only=False)
     assert ckpt["policy"]["name"] == "goal2d" and ckpt["policy"]["goal"] == "2d" and ckpt["policy"]["width"] == 32
     assert not (run / ".train").exists()
+    # the tiny study trains 2 policies per experiment: the second from the same stores, with its own training seed
+    second = torch.load(run.with_name("goal2d@1") / "checkpoints" / "epoch_0002.pt", weights_only=False)
+    assert (ckpt["seed"], second["seed"]) == (0, 1) and second["policy"] == ckpt["policy"]
+    assert not torch.equal(ckpt["model"]["pos"], second["model"]["pos"])  # exact: other seed, other initialisation
 
 
 def test_changing_one_experiment_reruns_only_its_jobs(tiny_run):
@@ -254,8 +259,13 @@ def test_table_jobs_draw_pairwise_disjoint_test_seeds_and_record_their_settings(
         for i, a in enumerate(names):
             for b in names[i + 1:]:
                 assert not draws[a] & draws[b], f"{exp}: {a} and {b} share seeds {sorted(draws[a] & draws[b])}"
-    # rows are compared on the same episodes: every experiment's stability run 0 drew the same seeds
-    assert len({frozenset(d["stability 0"]) for d in by_exp.values()}) == 1
+    # rows are compared policy by policy on the same episodes: policy k of every experiment drew the same seeds for
+    # its stability run 0, and the two policies of the tiny study drew disjoint ones
+    by_policy = {}
+    for pid, draws in by_exp.items():
+        by_policy.setdefault(split_policy(pid)[1], set()).add(frozenset(draws["stability 0"]))
+    assert sorted(by_policy) == [0, 1] and all(len(v) == 1 for v in by_policy.values())
+    assert not next(iter(by_policy[0])) & next(iter(by_policy[1]))
 
 
 def test_findings_of_the_main_job_are_built_from_its_episodes(tiny_run):
@@ -264,8 +274,11 @@ def test_findings_of_the_main_job_are_built_from_its_episodes(tiny_run):
     f = pl.read_csv(tiny_run / "results" / "tables" / "findings_main.csv")
     assert f["Finding"].to_list() == [1, 2, 3]
     assert all(v in ("reproduced", "same direction, not resolved", "opposite direction, not resolved",
-                     "no difference seen, not resolved", "not reproduced") for v in f["Verdict"])
-    assert "Pure Visual" in f["This build"][0] and "/4 (" in f["This build"][0]  # 2 runs x 2 episodes per row
+                     "no difference seen, not resolved", "not reproduced",
+                     "not contradicted, could not resolve ±10 points") for v in f["Verdict"])
+    # 2 policies x 2 runs x 2 episodes per row, tested over policies
+    assert "Pure Visual" in f["This build"][0] and "(2 policies, " in f["This build"][0]
+    assert "Welch t over policies" in f["Test"][0]
 
 
 def test_dry_run_of_all_audits_the_whole_study_on_both_configs(tmp_path):
@@ -324,9 +337,10 @@ def test_table5_1_end_to_end_and_identical_on_a_rerun(tiny_run, tmp_path):
     assert table["Method"].to_list() == ["Pure Visual", "2D-Spatial-Proj", "Explicit-3D-GT",
                                          "Privileged state (control)"]
     assert table["Runs"].to_list() == [2] * 4 and table["Episodes per run"].to_list() == [2] * 4
+    assert table["Policies"].to_list() == [2] * 4
     assert table["SR mean"].is_between(0, 1).all()
     t2 = pl.read_csv(tiny_run / "results" / "tables" / "table5_2.csv")
-    assert (t2["Total"] + table["Trivial excluded"]).to_list() == [4] * 4
+    assert (t2["Total"] + table["Trivial excluded"]).to_list() == [8] * 4  # 2 policies x 2 runs x 2 episodes
     steps = pl.read_parquet(tiny_run / "results" / "runs" / "goal2d" / "stability" / "run_0.steps.parquet")
     assert {"action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos"} <= set(steps.columns)
     assert steps.group_by("seed").len()["len"].max() <= 12  # the episode cap

@@ -1,9 +1,10 @@
 """Where every artifact lives: the one source of path patterns, read by the rule files (as wildcard patterns) and
 by the code that finds a run's files (filled in with ``str.format``).
 
-Fields: ``task`` (PickCube-v1, ...), ``cams`` (dual | native), ``res`` (pixels), ``encoder``, ``shard``, ``exp``
-(an experiment of config ``experiments``), ``epoch`` (4 digits), ``run`` (a stability run), ``table``, ``figure``.
-A frames store's name ``{task}_{cams}_{res}`` is what config `encoders.slots_ssl.train_stores` lists."""
+Fields: ``task`` (PickCube-v1, ...), ``cams`` (dual | native), ``res`` (pixels), ``encoder``, ``shard``,
+``exp`` (one trained policy of an experiment of config ``experiments``: ``policy_id``), ``epoch`` (4 digits),
+``run`` (a stability run), ``table``, ``figure``. A frames store's name ``{task}_{cams}_{res}`` is what config
+`encoders.slots_ssl.train_stores` lists."""
 
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ ATTENTION_FIGURE = RESULTS + "/figures/attention_{task}_{cams}_{res}_{encoder}.p
 SCENES_STORE = RESULTS + "/features/{task}_{cams}_{res}_{encoder}.scenes.zarr"
 SCENES_SHARD = RESULTS + "/features/shards/{task}_{cams}_{res}_{encoder}.scenes_shard{shard}.zarr"  # merged into it
 
-# one folder per experiment: training, then evaluation
+# one folder per trained policy (policy_id): training, then evaluation
 RUN = RESULTS + "/runs/{exp}"
 CHECKPOINTS = RUN + "/checkpoints"
 TRAIN_LOG = RUN + "/train_log.parquet"
@@ -81,3 +82,22 @@ def features_diagnostics(name: str) -> str:
 def in_runs(pattern: str, runs_dir, **fields) -> str:
     """A RUN-relative pattern filled in, under another runs folder than results/runs when asked."""
     return pattern.replace(RESULTS + "/runs", str(runs_dir), 1).format(**fields)
+
+
+REPLICATE_MARK = "@"  # experiment names cannot hold it (config schema), so a policy id splits back unambiguously
+
+
+def policy_id(exp: str, replicate: int) -> str:
+    """The id (and runs folder name) of an experiment's policy number ``replicate``: policy 0 is the experiment's own
+    name, so a build of one policy per experiment keeps the folders it always had; policy k > 0 is ``exp@k``."""
+    if replicate < 0:
+        raise ValueError(f"policy {replicate} of {exp}: replicate indices start at 0")
+    return exp if replicate == 0 else f"{exp}{REPLICATE_MARK}{replicate}"
+
+
+def split_policy(pid: str) -> tuple[str, int]:
+    """(experiment, replicate index) of a policy id."""
+    exp, mark, k = pid.partition(REPLICATE_MARK)
+    if mark and not (k.isdigit() and int(k) > 0 and str(int(k)) == k):
+        raise ValueError(f"policy id {pid!r}: expected experiment@k with k a positive integer")
+    return exp, int(k) if mark else 0

@@ -11,7 +11,7 @@ wildcard_constraints:
     encoder="slots_ssl|spot|dino_cls|dino_grid4|dino_dense|state",
     res=r"\d+",
     shard=r"\d+",
-    exp=r"[A-Za-z0-9][A-Za-z0-9_-]*",
+    exp=r"[A-Za-z0-9][A-Za-z0-9_-]*(@[1-9][0-9]*)?",  # a policy id (paths.policy_id): experiment[@replicate]
     lever=r"[A-Za-z0-9][A-Za-z0-9_-]*",
 
 
@@ -107,8 +107,13 @@ def encoder_checkpoint(encoder):
 
 
 def policy_of(w):
-    """The resolved policy settings of the job's experiment."""
-    return _exp.resolve(config, w.exp)
+    """The resolved policy settings of the job's experiment (``exp``: one of its policies, paths.policy_id)."""
+    return _exp.resolve(config, paths.split_policy(w.exp)[0])
+
+
+def training_seed(w):
+    """Policy k of an experiment trains with seed + k (config `replicates`): policy 0 with the root seed itself."""
+    return config["seed"] + paths.split_policy(w.exp)[1]
 
 
 def train_inputs(w):

@@ -2,12 +2,13 @@
 # checkpoint, stability runs (one job each), Table 5.5's training-time runs, training-seed runs, failure
 # classification (docs/study.md, Failure taxonomy), and the study's tables and figures (docs/study.md, Tables and
 # figures).
-from ocpipe.study import findings, registry, targets
+from ocpipe.study import builds, findings, registry, targets
 
 
 localrules:
     best,
     findings,
+    build_comparison,
     failures,
     table,
     figure,
@@ -15,7 +16,17 @@ localrules:
 
 
 # what tables and figures read from config: their rows and the settings those rows' experiments resolve to
-TABLE_CFG = cfg("profile", "tables", "experiments", "policy", "encoders", "evaluation", "demos")
+TABLE_CFG = cfg(
+    "profile",
+    "replicates",
+    "replicate_seed_offset",
+    "tables",
+    "experiments",
+    "policy",
+    "encoders",
+    "evaluation",
+    "demos",
+)
 
 
 # what every evaluation job reads: its policy, the protocol, and the config sections its environment and encoder
@@ -199,6 +210,35 @@ rule findings:
         cfg=TABLE_CFG,
     script:
         "../scripts/findings.py"
+
+
+rule build_comparison:
+    """The findings of ``scope`` from this build's K policies and the next K (replicate_seed_offset + K), side by
+    side: does any claim resolve one way in one build and the other way in the other, and does each row's mean lie
+    within the other build's 95 % interval?"""
+    input:
+        lambda w: builds.inputs(config, w.scope),
+    output:
+        csv=report(
+            f"{paths.TABLE_DIR}/two_builds_{{scope}}.csv", category="Tables", labels={"table": "two builds {scope}"}
+        ),
+        rows=f"{paths.TABLE_DIR}/two_builds_{{scope}}.rows.csv",
+        md=f"{paths.TABLE_DIR}/two_builds_{{scope}}.md",
+    log:
+        "results/logs/tables/two_builds_{scope}.log",
+    benchmark:
+        "results/benchmarks/tables/two_builds_{scope}.tsv"
+    wildcard_constraints:
+        scope="|".join(findings.SCOPES),
+    conda:
+        "../envs/ocpipe.yaml"
+    threads: threads_of("light")
+    resources:
+        **resources_of("light"),
+    params:
+        cfg=TABLE_CFG,
+    script:
+        "../scripts/build_comparison.py"
 
 
 rule figure:

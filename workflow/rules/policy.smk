@@ -1,4 +1,5 @@
-# Policy training: one job per named experiment (config `experiments`, overrides of `policy`).
+# Policy training: one job per policy, K per named experiment (config `experiments`, overrides of `policy`;
+# `replicates`).
 
 
 rule train:
@@ -18,7 +19,7 @@ rule train:
         **resources_of("train"),
     params:
         policy=policy_of,
-        seed=config["seed"],
+        seed=training_seed,
         camera_approx=config["camera_approx"],
     script:
         "../scripts/train.py"

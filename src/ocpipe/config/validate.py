@@ -13,7 +13,7 @@ from ..policy.settings import schema_properties
 from .errors import ConfigError
 from .experiments import problems as policy_problems
 from .experiments import resolve, resolve_lever
-from .seed_pools import pool_problems
+from .seed_pools import policies_drawn, pool_problems
 
 # evaluation settings that measure something other than the policy: never behind a table
 DIAGNOSTIC_FILTERS = ("true_pose",)
@@ -156,7 +156,7 @@ def _cross_field_problems(config: dict) -> list[str]:
         for label, exp in rows.items():
             if exp not in config["experiments"]:
                 problems.append(f"  tables.{table}.{label}: experiment {exp!r} is not defined under experiments")
-    problems += pool_problems(config["evaluation"])
+    problems += pool_problems(config["evaluation"], policies_drawn(config))
     if config["evaluation"]["readout_filter"] in DIAGNOSTIC_FILTERS:
         problems.append(f"  evaluation.readout_filter: {config['evaluation']['readout_filter']!r} is a diagnostic "
                         "(perfect perception), not a method: the tables and levers refuse it")

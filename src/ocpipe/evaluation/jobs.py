@@ -12,6 +12,7 @@ import polars as pl
 
 from ..config.seed_pools import pool_problems, pools, table_blocks
 from ..frames.store import open_store
+from ..paths import split_policy
 from ..study import stats
 from ..util.atomic import atomic_path, write_json
 from . import closed_loop
@@ -22,24 +23,28 @@ TEST_KINDS = ("sweep", "stability", "failure_run", "training_time")  # each draw
 
 
 def seeds_for(kind: str, evaluation_cfg: dict, seed: int, run: int = 0,
-              episode_seeds: list[int] | None = None) -> list[int]:
-    """A table job's seeds. The sweep, stability run ``run``, the failure run and the training-time run take
-    pairwise disjoint blocks of one shuffle of the test pool, the same for every experiment (rows are compared on
-    the same episodes); 'train_seeds' are demo seeds (Table 5.6)."""
+              episode_seeds: list[int] | None = None, replicate: int = 0) -> list[int]:
+    """A table job's seeds. The sweep, and policy ``replicate``'s stability run ``run``, failure run and
+    training-time run take pairwise disjoint blocks of one shuffle of the test pool (config.seed_pools), the same
+    for every experiment (rows are compared policy by policy on the same episodes); 'train_seeds' are demo seeds
+    (Table 5.6)."""
     if kind == "train_seeds":
         return training_seeds(evaluation_cfg, episode_seeds or [], seed)
     if kind not in TEST_KINDS:
         raise ValueError(f"unknown evaluation kind {kind!r}")
-    problems = pool_problems(evaluation_cfg)
+    if kind == "stability" and not 0 <= run < evaluation_cfg["stability_runs"]:
+        raise ValueError(f"stability run {run}: evaluation.stability_runs is {evaluation_cfg['stability_runs']}")
+    problems = pool_problems(evaluation_cfg, replicate + 1)
     if problems:
         raise ValueError(problems[0].strip())
     shuffled = np.random.default_rng([seed, TEST_POOL]).permutation(pools(evaluation_cfg)[1])
+    wanted = ("sweep", 0, 0) if kind == "sweep" else (kind, replicate, run if kind == "stability" else 0)
     start = 0
-    for block, n in table_blocks(evaluation_cfg).items():
-        if block == (kind, run if kind == "stability" else 0):
+    for block, n in table_blocks(evaluation_cfg, replicate + 1).items():
+        if block == wanted:
             return sorted(int(s) for s in shuffled[start:start + n])
         start += n
-    raise ValueError(f"stability run {run}: evaluation.stability_runs is {evaluation_cfg['stability_runs']}")
+    raise AssertionError(f"no block {wanted}")  # table_blocks holds every kind of every policy up to replicate
 
 
 def validation_seeds(evaluation_cfg: dict, n: int, seed: int) -> list[int]:
@@ -101,9 +106,10 @@ def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None 
 def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_ckpt, out_episodes, out_steps,
             seed: int, run: int = 0, best_json=None, epoch: int | None = None, threads: int = 1,
             progress: bool = True, policy: dict | None = None, validation_episodes: int = 0) -> pl.DataFrame:
-    """``policy``: the experiment's resolved settings; a checkpoint trained with another task, camera set,
-    resolution or encoder is refused before the simulator starts. ``kind`` 'validation' (a lever) runs
-    ``validation_episodes`` episodes of the validation pool."""
+    """``exp``: the policy's id (paths.policy_id: its replicate picks its block of test episodes). ``policy``: the
+    experiment's resolved settings; a checkpoint trained with another task, camera set, resolution or encoder is
+    refused before the simulator starts. ``kind`` 'validation' (a lever) runs ``validation_episodes`` episodes of
+    the validation pool."""
     if epoch is None:
         epoch = json.loads(Path(best_json).read_text())["epoch"]
     ckpt = Path(checkpoints_dir) / f"epoch_{epoch:04d}.pt"
@@ -121,7 +127,7 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
             seeds = validation_seeds(config["evaluation"], validation_episodes, seed)
         else:
             episode_seeds = list(open_store(frames).attrs["episode_seeds"]) if kind == "train_seeds" else None
-            seeds = seeds_for(kind, config["evaluation"], seed, run, episode_seeds)
+            seeds = seeds_for(kind, config["evaluation"], seed, run, episode_seeds, split_policy(exp)[1])
         pool = {"train_seeds": "demos", "validation": "validation"}.get(kind, "test")
         ids = {"exp": exp, "checkpoint": epoch, "run": run, "kind": kind, "seed_pool": pool}
         episodes, steps = closed_loop.run(loop, seeds, ids, progress)

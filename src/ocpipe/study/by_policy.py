@@ -10,9 +10,10 @@ Here each policy contributes one number (its success rate, or a share, or a mean
 Welch's t-test on those K numbers: its variance is the spread between policies, which holds both sources, and it
 needs no equal variances. Where a row's K rates happen to agree more closely than its episodes alone allow, its
 variance is floored at the binomial variance of one policy's rate, p (1 - p) mean(1 / n) at the two rows' pooled
-rate p: the episode noise every policy carries, which a small K can hide (five policies at 0 of 40 would otherwise
-be 'resolved' below five at 1 of 40 with p = 0). simulate_false_positives measures how close to nominal the test
-stays where rates are far from normal (docs/study.md gives the figures).
+rate p (half a success added, so that rows at 0 % keep a floor): the episode noise every policy carries, which a small
+K can hide (five policies at 0 of 40 would otherwise be 'resolved' below five at 1 of 40 with p = 0).
+simulate_false_positives measures how close to nominal the test stays where rates are far from normal (docs/study.md
+gives the figures).
 
 'About the same' claims are tested for equivalence (two one-sided tests, TOST) within a margin, and 'at most'
 claims for non-inferiority with that margin: such a claim counts only when its test resolves it, never merely
@@ -76,8 +77,10 @@ class Welch:
                              "at least 2 per row (config `replicates`)")
         pooled = None
         if a.episodes is not None and b.episodes is not None:
-            pooled = float((a.values * a.episodes).sum() + (b.values * b.episodes).sum()) / float(
-                a.episodes.sum() + b.episodes.sum())
+            # half a success added: rows that never (or always) succeed still carry episode noise, so a gap between
+            # two rows at 0 of 40 per policy is not 'resolvable' at 0 points
+            pooled = (float((a.values * a.episodes).sum() + (b.values * b.episodes).sum()) + 0.5) / float(
+                a.episodes.sum() + b.episodes.sum() + 1)
         va, vb = a.variance(pooled) / a.policies, b.variance(pooled) / b.policies
         se = float(np.sqrt(va + vb))
         df = (va + vb) ** 2 / (va**2 / (a.policies - 1) + vb**2 / (b.policies - 1)) if se > 0 else 1.0
@@ -97,12 +100,16 @@ class Welch:
 
     def resolvable_gap(self, alpha: float = ALPHA, power: float = POWER) -> float:
         """The smallest true difference a one-sided test at ``alpha`` finds with probability ``power``, at this
-        spread and these policy counts."""
+        spread and these policy counts (nan where the values have no spread at all to scale it)."""
+        if self.se == 0:
+            return float("nan")
         return float((stats.t.ppf(1 - alpha, self.df) + stats.t.ppf(power, self.df)) * self.se)
 
     def resolvable_margin(self, alpha: float = ALPHA, power: float = POWER) -> float:
         """The narrowest margin within which TOST shows two rows of truly equal means equivalent with probability
         ``power``, at this spread and these policy counts."""
+        if self.se == 0:
+            return float("nan")
         return float((stats.t.ppf(1 - alpha, self.df) + stats.t.ppf((1 + power) / 2, self.df)) * self.se)
 
 

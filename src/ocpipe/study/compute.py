@@ -30,7 +30,8 @@ STORE_STAGES = {"demos_shard": "demos", "demos_merge": "demos", "demos_import": 
                 "features": "features", "features_diagnostics": "features", "attention_maps": "features",
                 "scenes_shard": "scenes", "scenes": "scenes"}
 ENCODER_JOBS = {"train_slots_ssl": "slots_ssl", "train_spot_slots_on_dino": "spot"}
-SUFFIX = re.compile(r"(_shard\d+|_epoch_\d+|_run_\d+)$")
+# a job's shard, epoch or run, and a policy's replicate (paths.policy_id): an experiment is charged for all its policies
+SUFFIX = re.compile(r"(@\d+)?(_shard\d+|_epoch_\d+|_run_\d+)?$")
 STAGES = ("train", "sweep", "stability", "other", "demos", "frames", "features", "scenes", "encoder", "report")
 
 

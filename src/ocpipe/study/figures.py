@@ -14,13 +14,20 @@ import polars as pl  # noqa: E402
 from ..evaluation.taxonomy import FUNNEL, counts  # noqa: E402
 from ..evaluation.taxonomy import funnel as funnel_counts
 from ..util.atomic import atomic_path  # noqa: E402
-from .tables import TABLE5_2_CLASSES, stability_summary  # noqa: E402
+from .tables import TABLE5_2_CLASSES, by_policy, stability_summary  # noqa: E402
 
 
 def _save(fig, path) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, bbox_inches="tight")
     plt.close(fig)
+
+
+def _policy_points(ax, x: float, values: list[float]) -> None:
+    """Each trained policy's own figure beside its row's bar, so the spread between policies shows."""
+    if len(values) > 1:
+        offsets = np.linspace(-0.2, 0.2, len(values))
+        ax.plot(x + offsets, values, "o", color="black", ms=3.5, alpha=0.7, zorder=3)
 
 
 def fig5_1(train_logs: dict[str, pl.DataFrame], sweeps: dict[str, pl.DataFrame], path, window: int = 10) -> None:
@@ -31,14 +38,17 @@ def fig5_1(train_logs: dict[str, pl.DataFrame], sweeps: dict[str, pl.DataFrame],
     ax_loss, ax_ret = axes[:2]
     for i, (method, logs) in enumerate(train_logs.items()):
         colour = f"C{i}"
-        ax_loss.plot(logs["epoch"], logs["loss"], color=colour, alpha=0.25, lw=1)
-        rolling = logs["loss"].rolling_mean(window_size=window, min_samples=1)
-        ax_loss.plot(logs["epoch"], rolling, color=colour, lw=2, label=method)
+        for policy in by_policy(logs):  # each trained policy's loss, thin
+            ax_loss.plot(policy["epoch"], policy["loss"], color=colour, alpha=0.25, lw=1)
+        mean = logs.group_by("epoch").agg(pl.col("loss").mean()).sort("epoch")
+        rolling = mean["loss"].rolling_mean(window_size=window, min_samples=1)
+        ax_loss.plot(mean["epoch"], rolling, color=colour, lw=2, label=method)
         sweep = sweeps[method].group_by("checkpoint").agg(pl.col("return").mean(), pl.col("success").mean())
         sweep = sweep.sort("checkpoint")
         ax_ret.plot(sweep["checkpoint"], sweep["return"], "o-", color=colour, label=method)
         if openloop and "val_joint_err_rad" in logs.columns:
-            axes[2].plot(logs["epoch"], logs["val_joint_err_rad"], "o-", color=colour, ms=3, label=method)
+            err = logs.group_by("epoch").agg(pl.col("val_joint_err_rad").mean()).sort("epoch")
+            axes[2].plot(err["epoch"], err["val_joint_err_rad"], "o-", color=colour, ms=3, label=method)
     if openloop:
         axes[2].set(xlabel="epoch", ylabel="mean |joint error| (rad)", yscale="log",
                     title="Open-loop action error, held-out demos")
@@ -52,13 +62,18 @@ def fig5_1(train_logs: dict[str, pl.DataFrame], sweeps: dict[str, pl.DataFrame],
 
 
 def fig5_2(stability: dict[str, pl.DataFrame], path) -> None:
-    """Mean episode length (mean +- std over stability runs) per method."""
+    """Mean episode length per method: mean ± std over stability runs (one policy) or over policies, each policy's
+    own mean as a point."""
     methods = list(stability)
     s = [stability_summary(stability[m]) for m in methods]
     fig, ax = plt.subplots(figsize=(6, 4))
-    ax.bar(methods, [x["length_mean"] for x in s], yerr=[np.nan_to_num(x["length_std"]) for x in s], capsize=6,
-           color=[f"C{i}" for i in range(len(methods))])
-    ax.set(ylabel="mean episode length (steps)", title="Episode length over stability runs (mean ± std)")
+    ax.bar(range(len(methods)), [x["length_mean"] for x in s], yerr=[np.nan_to_num(x["length_std"]) for x in s],
+           capsize=6, color=[f"C{i}" for i in range(len(methods))])
+    for i, m in enumerate(methods):
+        _policy_points(ax, i, [stability_summary(p)["length_mean"] for p in by_policy(stability[m])])
+    ax.set_xticks(range(len(methods)), methods)
+    over = "policies" if any(x["policies"] > 1 for x in s) else "stability runs"
+    ax.set(ylabel="mean episode length (steps)", title=f"Episode length over {over} (mean ± std)")
     ax.grid(axis="y", alpha=0.3)
     _save(fig, path)
 
@@ -81,7 +96,8 @@ def fig5_3(classes: dict[str, pl.DataFrame], path, title: str = "Failure distrib
 
 
 def sr_bars(rows, path, title: str) -> None:
-    """Held-out SR (mean ± std over stability runs) per table row; rows without results say why."""
+    """Held-out SR per table row: mean ± std over stability runs (one policy) or over policies, each policy's SR as
+    a point; rows without results say why."""
     fig, ax = plt.subplots(figsize=(1.6 * len(rows) + 2, 4))
     for i, row in enumerate(rows):
         if row.status:  # e.g. "needs weights: set encoders.dino.checkpoint (...)": name the key, not the whole story
@@ -91,6 +107,7 @@ def sr_bars(rows, path, title: str) -> None:
             continue
         s = stability_summary(row.data["stability"])
         ax.bar(i, s["sr_mean"], yerr=np.nan_to_num(s["sr_std"]), capsize=6, color=f"C{i}")
+        _policy_points(ax, i, s.get("policy_srs", []))
     ax.set_xticks(range(len(rows)), [r.label for r in rows], rotation=15, ha="right")
     ax.set(ylabel="success rate", ylim=(0, 1), title=title)
     ax.grid(axis="y", alpha=0.3)

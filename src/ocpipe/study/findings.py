@@ -1,5 +1,7 @@
 """The study's twelve findings, each judged on this build's episode files: the study's figures, this build's (with
-episode counts), the test, its p-value and a verdict (``stats.verdict``), or 'not run' naming what is missing.
+episode counts), the test, its p-value, the smallest gap it could resolve and a verdict (``by_policy.verdict``), or
+'not run' naming what is missing. Each row's figures are taken per trained policy, and the claims (``claims``) are
+tested with the policy as the unit when a row has several.
 
 Nothing here is typed in but the study's own figures: every figure of this build is computed from the
 evaluation files under results/runs/ that the tables read."""
@@ -12,7 +14,7 @@ from dataclasses import dataclass
 import polars as pl
 
 from ..evaluation import taxonomy
-from . import stats
+from . import by_policy, claims, stats, tables
 from .tables import Row
 
 PURE, G2D, G3D = "Pure Visual", "2D-Spatial-Proj", "Explicit-3D-GT"
@@ -29,105 +31,111 @@ class Finding:
     judge: Callable[[dict[str, Row]], list[stats.Check]]
 
 
-def _sr(rows, label, need="stability"):
-    return stats.successes(rows[label].data[need])
+def _policies(frame: pl.DataFrame) -> list[pl.DataFrame]:
+    return tables.by_policy(frame)
 
 
-def _lengths(rows, label):
-    eps = rows[label].data["stability"].filter(~pl.col("trivial"))
-    return eps["steps"].to_list()
+def _sr(rows, label, need="stability") -> claims.Counts:
+    return [stats.successes(p) for p in _policies(rows[label].data[need])]
 
 
-def _class_count(rows, label, cls):
-    """(episodes of class ``cls``, classified non-trivial episodes) of a row's failure run."""
-    c = taxonomy.counts(rows[label].data["failures"])
-    return c[cls], sum(c.values())
+def _lengths(rows, label) -> list[list[float]]:
+    return [p.filter(~pl.col("trivial"))["steps"].to_list() for p in _policies(rows[label].data["stability"])]
 
 
-def _failures_of(rows, label, cls):
-    """(episodes of class ``cls``, failed non-trivial episodes)."""
-    c = taxonomy.counts(rows[label].data["failures"])
-    return c[cls], sum(c.values()) - c["Success"]
+def _class_count(rows, label, cls) -> claims.Counts:
+    """Per policy: (episodes of class ``cls``, classified non-trivial episodes) of its failure run."""
+    counts = [taxonomy.counts(p) for p in _policies(rows[label].data["failures"])]
+    return [(c[cls], sum(c.values())) for c in counts]
 
 
-def _peak_returns(rows, label):
-    """The sweep's episode returns at the best checkpoint (Table 5.7's 'reward at peak')."""
-    best = rows[label].data["best"]["epoch"]
-    return rows[label].data["sweep"].filter(pl.col("checkpoint") == best)["return"].to_list()
+def _failures_of(rows, label, cls) -> claims.Counts:
+    """Per policy: (episodes of class ``cls``, failed non-trivial episodes)."""
+    counts = [taxonomy.counts(p) for p in _policies(rows[label].data["failures"])]
+    return [(c[cls], sum(c.values()) - c["Success"]) for c in counts]
 
 
-def _train_seed_sr(rows, label):
-    return stats.successes(rows[label].data["train_seeds"])
+def _peak_returns(rows, label) -> list[list[float]]:
+    """Per policy: the sweep's episode returns at its best checkpoint (Table 5.7's 'reward at peak')."""
+    sweeps = _policies(rows[label].data["sweep"])
+    return [sweep.filter(pl.col("checkpoint") == best["epoch"])["return"].to_list()
+            for best, sweep in zip(rows[label].data["best"], sweeps, strict=True)]
+
+
+def _train_seed_sr(rows, label) -> claims.Counts:
+    return _sr(rows, label, "train_seeds")
 
 
 def _f1(r):
-    return [stats.rate_less(PURE, _sr(r, PURE), G2D, _sr(r, G2D)), stats.rate_less(G2D, _sr(r, G2D), G3D, _sr(r, G3D))]
+    return [claims.rate_less(PURE, _sr(r, PURE), G2D, _sr(r, G2D)),
+            claims.rate_less(G2D, _sr(r, G2D), G3D, _sr(r, G3D))]
 
 
 def _f2(r):
-    return [stats.values_greater(PURE, _lengths(r, PURE), G2D, _lengths(r, G2D), "length"),
-            stats.values_greater(G2D, _lengths(r, G2D), G3D, _lengths(r, G3D), "length")]
+    return [claims.values_greater(PURE, _lengths(r, PURE), G2D, _lengths(r, G2D), "length", "steps"),
+            claims.values_greater(G2D, _lengths(r, G2D), G3D, _lengths(r, G3D), "length", "steps")]
 
 
 def _f3(r):
-    return [stats.rate_less(G3D, _class_count(r, G3D, "Near Miss"), PURE, _class_count(r, PURE, "Near Miss"),
-                            "Near Miss share"),
-            stats.rate_equal(PURE, _class_count(r, PURE, "No Grasp"), G3D, _class_count(r, G3D, "No Grasp"),
-                             "No Grasp share")]
+    return [claims.rate_less(G3D, _class_count(r, G3D, "Near Miss"), PURE, _class_count(r, PURE, "Near Miss"),
+                             "Near Miss share"),
+            claims.rate_equal(PURE, _class_count(r, PURE, "No Grasp"), G3D, _class_count(r, G3D, "No Grasp"),
+                              "No Grasp share")]
 
 
 def _f4(r):
     a, e128, e224 = "approx-128", "exact-128", "exact-224"
-    return [stats.rate_less(a, _sr(r, a), e128, _sr(r, e128), strict=False),
-            stats.rate_less(e128, _sr(r, e128), e224, _sr(r, e224))]
+    return [claims.rate_less(a, _sr(r, a), e128, _sr(r, e128), strict=False),
+            claims.rate_less(e128, _sr(r, e128), e224, _sr(r, e224))]
 
 
 def _f5(r):
     # SPOT where its weights are given, else the offline slot encoder
     slots = "SPOT 14 slots" if r.get("SPOT 14 slots") and r["SPOT 14 slots"].status is None \
         else "slots_ssl 14 slots (offline)"
-    return [stats.rate_less("DINO CLS", _sr(r, "DINO CLS"), slots, _sr(r, slots)),
-            stats.rate_less("DINO 4x4", _sr(r, "DINO 4x4"), slots, _sr(r, slots)),
-            stats.rate_at_most("DINO 14x14 dense", _sr(r, "DINO 14x14 dense"), 0.05)]
+    return [claims.rate_less("DINO CLS", _sr(r, "DINO CLS"), slots, _sr(r, slots)),
+            claims.rate_less("DINO 4x4", _sr(r, "DINO 4x4"), slots, _sr(r, slots)),
+            claims.rate_at_most("DINO 14x14 dense", _sr(r, "DINO 14x14 dense"), 0.05)]
 
 
 def _f6(r):
     st = "Slot Transformer"
     run = "training_time"  # the study's heads: one 30-episode training-time run each
-    return [stats.rate_less(other, _sr(r, other, run), st, _sr(r, st, run), strict=False) for other in r if other != st]
+    return [claims.rate_less(other, _sr(r, other, run), st, _sr(r, st, run), strict=False)
+            for other in r if other != st]
 
 
 def _f7(r):
     cat, xat = "Concatenation", "Cross-attention"
-    return [stats.rate_less(cat, _train_seed_sr(r, cat), xat, _train_seed_sr(r, xat), "training-seed SR"),
-            stats.rate_equal(cat, _sr(r, cat), xat, _sr(r, xat), "held-out SR")]
+    return [claims.rate_less(cat, _train_seed_sr(r, cat), xat, _train_seed_sr(r, xat), "training-seed SR"),
+            claims.rate_equal(cat, _sr(r, cat), xat, _sr(r, xat), "held-out SR")]
 
 
 def _f8(r):
     t5, t20, t40 = "T=5", "T=20", "T=40"
-    return [stats.rate_equal(t5, _sr(r, t5), t20, _sr(r, t20)), stats.rate_equal(t5, _sr(r, t5), t40, _sr(r, t40)),
-            stats.values_greater(t5, _peak_returns(r, t5), t20, _peak_returns(r, t20), "reward at peak"),
-            stats.values_greater(t20, _peak_returns(r, t20), t40, _peak_returns(r, t40), "reward at peak")]
+    return [claims.rate_equal(t5, _sr(r, t5), t20, _sr(r, t20)), claims.rate_equal(t5, _sr(r, t5), t40, _sr(r, t40)),
+            claims.values_greater(t5, _peak_returns(r, t5), t20, _peak_returns(r, t20), "reward at peak", "reward"),
+            claims.values_greater(t20, _peak_returns(r, t20), t40, _peak_returns(r, t40), "reward at peak", "reward")]
 
 
 def _f9(r):
     dof7, glob, grouped = "7-DoF", "9-DoF global z-score", "9-DoF grouped z-score"
-    return [stats.rate_less(glob, _sr(r, glob), dof7, _sr(r, dof7)), stats.rate_at_most(glob, _sr(r, glob), 0.05),
-            stats.rate_less(grouped, _sr(r, grouped), dof7, _sr(r, dof7))]
+    return [claims.rate_less(glob, _sr(r, glob), dof7, _sr(r, dof7)), claims.rate_at_most(glob, _sr(r, glob), 0.05),
+            claims.rate_less(grouped, _sr(r, grouped), dof7, _sr(r, dof7))]
 
 
 def _f10(r):
-    return [stats.rate_less(w, _sr(r, w), "Uniform", _sr(r, "Uniform"), strict=False) for w in r if w != "Uniform"]
+    return [claims.rate_less(w, _sr(r, w), "Uniform", _sr(r, "Uniform"), strict=False) for w in r if w != "Uniform"]
 
 
 def _f11(r):
     native, aligned = "Native (base + hand, no goal)", "Aligned (base + side, 2D goal)"
-    return [stats.rate_less(native, _sr(r, native), aligned, _sr(r, aligned))]
+    return [claims.rate_less(native, _sr(r, native), aligned, _sr(r, aligned))]
 
 
 def _f12(r):
     aligned = "Aligned (base + side, 2D goal)"
-    return [stats.rate_above(aligned, _failures_of(r, aligned, "No Grasp"), 0.5, "No Grasp share of failures")]
+    return [claims.rate_above(aligned, _failures_of(r, aligned, "No Grasp"), 0.5, "No Grasp share of failures")]
 
 
 FINDINGS = (
@@ -183,9 +191,12 @@ def judge(finding: Finding, rows: dict[str, Row]) -> dict:
             "Claim": finding.claim, "Study": finding.study}
     reason = not_run(finding, rows)
     if reason:
-        return {**base, "This build": None, "Test": None, "p": None, "Verdict": reason}
+        return {**base, "This build": None, "Test": None, "p": None, "Resolvable at 80 % power": None,
+                "Verdict": reason}
     checks = finding.judge(rows)
     p = [c.p for c in checks if c.directional and c.p is not None]
+    resolvable = [c.resolvable for c in checks if c.resolvable]
     return {**base, "This build": "; ".join(c.text for c in checks),
             "Test": "; ".join(f"{c.test} p={c.p:.3g}" if c.p is not None else c.test for c in checks),
-            "p": max(p) if p else None, "Verdict": stats.verdict(checks)}
+            "p": max(p) if p else None, "Resolvable at 80 % power": "; ".join(resolvable) or None,
+            "Verdict": by_policy.verdict([c.outcome for c in checks])}

@@ -10,8 +10,9 @@ import polars as pl
 from ..config.experiments import resolve
 from ..encoders.registry import tokens_per_camera
 from ..evaluation import taxonomy
+from ..paths import split_policy
 from ..util.atomic import atomic_path
-from . import conditions, figures, findings, stats, tables, targets
+from . import by_policy, conditions, figures, findings, stats, tables, targets
 from .registry import FIGURES, SPATIAL_FIGURES_NEEDS, TABLES
 
 
@@ -62,18 +63,20 @@ def _checkpoint_facts(checkpoints_dir) -> dict:
     return {"parameters": int(sum(v.numel() for v in state.values())), "sequence_length": int(state["pos"].shape[0])}
 
 
-def _load(need: str, files: list[str]):
-    if need in ("stability", "sweep"):
-        return _read(files)
+def _load(need: str, per_policy: dict[int, list[str]]):
+    """One need of a row's K policies (replicate index -> its files): episodes, logs and failure classes as one
+    frame with a ``policy`` column; the best checkpoints as one dict per policy; the model's facts once (every
+    policy of a row has the same architecture)."""
     if need == "checkpoints":
-        return _checkpoint_facts(files[0])
+        return _checkpoint_facts(next(iter(per_policy.values()))[0])
     if need == "best":
-        return json.loads(Path(files[0]).read_text())
-    return pl.read_parquet(files[0])
+        return [{**json.loads(Path(files[0]).read_text()), "policy": k} for k, files in per_policy.items()]
+    return pl.concat([_read(files).with_columns(policy=pl.lit(k)) for k, files in per_policy.items()],
+                     how="vertical")
 
 
 def table_rows(config: dict, table: str, needs=None, runs_dir="results/runs") -> list[tables.Row]:
-    """The rows of a table (or of a figure drawing a table's rows), each with the artefacts it reads."""
+    """The rows of a table (or of a figure drawing a table's rows), each with the artefacts of its K policies."""
     skip = targets.unavailable(config, table)
     out = []
     for label, exp in targets.rows(config, table).items():
@@ -81,7 +84,9 @@ def table_rows(config: dict, table: str, needs=None, runs_dir="results/runs") ->
         tokens = len(policy["cameras"]) * tokens_per_camera(policy["encoder"], config["encoders"])
         row = tables.Row(label, policy, status=skip.get(label), visual_tokens=tokens)
         if row.status is None:
-            row.data = {need: _load(need, targets.artefacts(config, exp, need, runs_dir))
+            pids = targets.policies(config, exp)
+            row.data = {need: _load(need, {split_policy(pid)[1]: targets.artefacts(config, pid, need, runs_dir)
+                                           for pid in pids})
                         for need in (TABLES[table].needs if needs is None else needs)}
         out.append(row)
     return out
@@ -104,10 +109,21 @@ def write_findings(config: dict, scope: str, csv_path, md_path, runs_dir="result
         rows = {r.label: r for r in table_rows(config, finding.table, finding.needs, runs_dir)}
         out.append(findings.judge(finding, rows))
     frame = pl.DataFrame(out, infer_schema_length=None)
-    note = (f"Profile {config.get('profile', '?')}. p: the largest p-value of the finding's order claims (SR: "
-            f"Fisher's exact test on success counts pooled over the stability runs; lengths and rewards: Mann-Whitney "
-            f"U; shares: Fisher or binomial); reproduced = every order resolved at p < {stats.ALPHA} and no 'equal' or "
-            "'at most' claim resolved against.")
+    k = config["replicates"]
+    if k > 1:
+        tests = (f"{k} policies per row, each trained with its own seed: the trained policy is the unit. Order claims: "
+                 "Welch's t on the per-policy rates (floored at one policy's binomial noise), lengths and rewards; "
+                 f"'about the same': equivalence (TOST), 'at most': non-inferiority, each within ±"
+                 f"{100 * by_policy.MARGIN:.0f} points. Resolvable: the smallest true gap (for 'about the same', the "
+                 "narrowest margin) the test finds at 80 % power with this run's spread and policy counts")
+    else:
+        tests = ("One policy per row: its episodes show episode noise only, not how far another training seed "
+                 "would move the row, so these p-values are too small (config `replicates`). SR: Fisher's exact test "
+                 "on success counts pooled over the stability runs; lengths and rewards: Mann-Whitney U; shares: "
+                 "Fisher or binomial")
+    note = (f"Profile {config.get('profile', '?')}. {tests}. p: the largest p-value of the finding's claims; "
+            f"reproduced = every claim resolved at p < {stats.ALPHA}; 'not contradicted' = an 'about the same' or "
+            "'at most' claim the test could neither show nor reject.")
     return write(frame, csv_path, md_path, "Findings of the study, judged on this build", note)
 
 

@@ -1,7 +1,9 @@
 """Claims about two rows of a table, judged on their episodes: is the claimed order there, and can the episodes
 resolve it? Each check gives the figures it compared, the test, its p-value and an outcome:
 
-  holds       the claim holds and is resolved (p < ALPHA), or, for 'equal' and 'at most' claims, is not violated
+  holds       the claim holds and is resolved (p < ALPHA)
+  not contradicted  an 'equal' or 'at most' claim that the episodes do not resolve against: no evidence for it
+              either (one policy per row offers no equivalence test; by_policy's K-policy tests do)
   unresolved  the claimed direction is seen but p >= ALPHA
   tie         neither direction is seen (equal figures)
   opposite    the opposite direction is seen, not resolved
@@ -24,7 +26,8 @@ class Check:
     test: str
     p: float | None
     outcome: str  # holds | unresolved | tie | opposite | violated
-    directional: bool = True  # a strict order the episodes must resolve (not an 'equal' or 'at most' claim)
+    directional: bool = True  # p is the evidence for the claim (an order's, or a test of a bounded claim)
+    resolvable: str | None = None  # K policies: the smallest gap (or equivalence margin) resolvable at 80 % power
 
 
 def successes(episodes: pl.DataFrame) -> tuple[int, int]:
@@ -41,7 +44,15 @@ def interval(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
     return float(ci.low), float(ci.high)
 
 
-def _rate(kn: tuple[int, int]) -> str:
+def t_half_width(values, confidence: float = 0.95) -> float:
+    """Half the width of the t interval of the mean of ``values`` (independent policies' SRs): nan for fewer than 2."""
+    v = np.asarray(values, float)
+    if len(v) < 2:
+        return float("nan")
+    return float(stats.t.ppf((1 + confidence) / 2, len(v) - 1) * v.std(ddof=1) / np.sqrt(len(v)))
+
+
+def format_rate(kn: tuple[int, int]) -> str:
     k, n = kn
     return f"{k}/{n} ({100 * k / n:.1f} %)" if n else f"{k}/0"
 
@@ -57,7 +68,9 @@ def _order(p_claimed: float, p_opposite: float, seen: float, strict: bool) -> st
     """``seen``: > 0 when the figures lean the claimed way, < 0 the other way, 0 when equal."""
     if p_opposite < ALPHA:
         return "violated"
-    if not strict or p_claimed < ALPHA:
+    if not strict:
+        return "not contradicted"
+    if p_claimed < ALPHA:
         return "holds"
     return "unresolved" if seen > 0 else "tie" if seen == 0 else "opposite"
 
@@ -70,7 +83,7 @@ def rate_less(a: str, ka: tuple[int, int], b: str, kb: tuple[int, int], what: st
     p_less, p_greater = fisher(ka, kb, "less"), fisher(ka, kb, "greater")
     seen = kb[0] / kb[1] - ka[0] / ka[1]
     sign = "<" if strict else "<="
-    return Check(f"{what} {a} {_rate(ka)} {sign} {b} {_rate(kb)}", "Fisher exact, one-sided",
+    return Check(f"{what} {a} {format_rate(ka)} {sign} {b} {format_rate(kb)}", "Fisher exact, one-sided",
                  p_less if strict else p_greater, _order(p_less, p_greater, seen, strict), strict)
 
 
@@ -79,8 +92,8 @@ def rate_equal(a: str, ka: tuple[int, int], b: str, kb: tuple[int, int], what: s
     if not ka[1] or not kb[1]:
         return Check(f"{what} {a} vs {b}: no episodes", "Fisher exact, two-sided", None, "unresolved", False)
     p = fisher(ka, kb, "two-sided")
-    return Check(f"{what} {a} {_rate(ka)} ~ {b} {_rate(kb)}", "Fisher exact, two-sided", p,
-                 "violated" if p < ALPHA else "holds", False)
+    return Check(f"{what} {a} {format_rate(ka)} ~ {b} {format_rate(kb)}", "Fisher exact, two-sided", p,
+                 "violated" if p < ALPHA else "not contradicted", False)
 
 
 def rate_at_most(a: str, ka: tuple[int, int], share: float, what: str = "SR") -> Check:
@@ -89,8 +102,8 @@ def rate_at_most(a: str, ka: tuple[int, int], share: float, what: str = "SR") ->
     if not ka[1]:
         return Check(f"{what} {a}: no episodes", "binomial, one-sided", None, "unresolved", False)
     p = float(stats.binomtest(ka[0], ka[1], share, alternative="greater").pvalue)
-    return Check(f"{what} {a} {_rate(ka)} <= {100 * share:.0f} %", "binomial, one-sided", p,
-                 "violated" if p < ALPHA else "holds", False)
+    return Check(f"{what} {a} {format_rate(ka)} <= {100 * share:.0f} %", "binomial, one-sided", p,
+                 "violated" if p < ALPHA else "not contradicted", False)
 
 
 def rate_above(a: str, ka: tuple[int, int], share: float, what: str) -> Check:
@@ -100,7 +113,7 @@ def rate_above(a: str, ka: tuple[int, int], share: float, what: str) -> Check:
     k, n = ka
     p_greater = float(stats.binomtest(k, n, share, alternative="greater").pvalue)
     p_less = float(stats.binomtest(k, n, share, alternative="less").pvalue)
-    return Check(f"{what} {a} {_rate(ka)} > {100 * share:.0f} %", "binomial, one-sided", p_greater,
+    return Check(f"{what} {a} {format_rate(ka)} > {100 * share:.0f} %", "binomial, one-sided", p_greater,
                  _order(p_greater, p_less, k / n - share, True))
 
 
@@ -113,17 +126,3 @@ def values_greater(a: str, va, b: str, vb, what: str) -> Check:
     p_less = float(stats.mannwhitneyu(va, vb, alternative="less").pvalue)
     return Check(f"{what} {a} {va.mean():.1f} (n={len(va)}) > {b} {vb.mean():.1f} (n={len(vb)})",
                  "Mann-Whitney U, one-sided", p_greater, _order(p_greater, p_less, va.mean() - vb.mean(), True))
-
-
-def verdict(checks: list[Check]) -> str:
-    """One finding's verdict from its checks."""
-    outcomes = {c.outcome for c in checks}
-    if "violated" in outcomes:
-        return "not reproduced"
-    if "opposite" in outcomes:
-        return "opposite direction, not resolved"
-    if "tie" in outcomes:
-        return "no difference seen, not resolved"
-    if "unresolved" in outcomes:
-        return "same direction, not resolved"
-    return "reproduced"

@@ -16,21 +16,48 @@ TABLE5_2_CLASSES = ("Success", "Near Miss", "Drop", "No Grasp", "Idle", "Unknown
 
 
 def _std(values: list[float]) -> float:
-    # sample standard deviation across independent runs; undefined for a single run
+    # sample standard deviation across independent runs or policies; undefined for a single one
     return float(np.std(values, ddof=1)) if len(values) > 1 else float("nan")
 
 
-def stability_summary(episodes: pl.DataFrame) -> dict:
-    """SR and mean episode length per stability run, as mean and std over runs (trivial successes excluded)."""
+def _runs_summary(episodes: pl.DataFrame) -> dict:
+    """One policy's SR and mean episode length per run, as mean and std over its runs."""
     srs, lengths, sizes = [], [], []
     for _, run in episodes.group_by("run", maintain_order=True):
         kept = run.filter(~pl.col("trivial"))
         srs.append(success_rate(run))
         lengths.append(float(kept["steps"].mean()) if len(kept) else float("nan"))
         sizes.append(len(run))
+    k, n = stats.successes(episodes)
     return {"sr_mean": float(np.mean(srs)), "sr_std": _std(srs), "length_mean": float(np.mean(lengths)),
             "length_std": _std(lengths), "episodes_per_run": int(np.median(sizes)), "runs": len(srs),
-            "trivial_excluded": int(episodes["trivial"].sum())}
+            "trivial_excluded": int(episodes["trivial"].sum()), "successes": k, "judged": n}
+
+
+def by_policy(episodes: pl.DataFrame) -> list[pl.DataFrame]:
+    """A row's frame (episodes, classes, logs) split into its policies', in replicate order."""
+    if "policy" not in episodes.columns:
+        return [episodes]
+    return [p for _, p in episodes.sort("policy", maintain_order=True).group_by("policy", maintain_order=True)]
+
+
+def stability_summary(episodes: pl.DataFrame) -> dict:
+    """SR and mean episode length (trivial successes excluded). One policy: mean and std over its runs. K policies
+    (a ``policy`` column): each policy's SR and mean length, as mean, std and 95 % t interval over the policies, and
+    beside them the episode noise of one policy's SR (binomial, sqrt(mean p (1 - p) / n)): the spread a policy's
+    episodes alone would show."""
+    per = [_runs_summary(p) for p in by_policy(episodes)]
+    if len(per) == 1:
+        return {**per[0], "policies": 1}
+    srs = [p["sr_mean"] for p in per]
+    half = stats.t_half_width(srs)
+    noise = np.mean([p["sr_mean"] * (1 - p["sr_mean"]) / p["judged"] for p in per if p["judged"]])
+    return {"sr_mean": float(np.mean(srs)), "sr_std": _std(srs), "sr_low": float(np.mean(srs)) - half,
+            "sr_high": float(np.mean(srs)) + half, "sr_episode_std": float(np.sqrt(noise)),
+            "length_mean": float(np.nanmean([p["length_mean"] for p in per])),
+            "length_std": _std([p["length_mean"] for p in per]), "episodes_per_run": per[0]["episodes_per_run"],
+            "runs": per[0]["runs"], "trivial_excluded": int(episodes["trivial"].sum()), "policies": len(per),
+            "policy_srs": srs}
 
 
 def table5_2(methods: dict[str, pl.DataFrame], always: tuple[str, ...] = ()) -> pl.DataFrame:
@@ -69,12 +96,23 @@ class Row:
     visual_tokens: int | None = None  # per timestep, all cameras
 
 
+SPREAD_COLUMNS = ("SR mean", "SR std over policies", "SR 95 % low", "SR 95 % high", "SR episode std (one policy)",
+                  "Episode length mean", "Episode length std over policies")
+
+
 def _stability(row: Row) -> dict:
+    """One policy per row: SR and length, mean and std over its stability runs. K policies: mean, std and 95 %
+    interval over the policies, with one policy's episode noise beside them (stability_summary)."""
+    many = row.status is None and "policy" in row.data["stability"].columns \
+        and row.data["stability"]["policy"].n_unique() > 1
     if row.status:
-        return {"SR mean": None, "SR std": None, "Episode length mean": None, "Episode length std": None}
+        return dict.fromkeys(("SR mean", "SR std", "Episode length mean", "Episode length std"))
     s = stability_summary(row.data["stability"])
-    return {"SR mean": s["sr_mean"], "SR std": s["sr_std"], "Episode length mean": s["length_mean"],
-            "Episode length std": s["length_std"]}
+    if not many:
+        return {"SR mean": s["sr_mean"], "SR std": s["sr_std"], "Episode length mean": s["length_mean"],
+                "Episode length std": s["length_std"]}
+    return dict(zip(SPREAD_COLUMNS, (s["sr_mean"], s["sr_std"], s["sr_low"], s["sr_high"], s["sr_episode_std"],
+                                     s["length_mean"], s["length_std"]), strict=True))
 
 
 def _minutes_per_epoch(row: Row):
@@ -97,11 +135,12 @@ def representation_columns(row: Row) -> dict:
 
 
 def _one_run(row: Row, need: str) -> dict:
-    """SR of one run (trivial successes excluded) with its 95 % Wilson interval, and the mean episode length."""
+    """SR of one run per policy (trivial successes excluded) with its 95 % interval (one policy: Wilson's over its
+    episodes; K policies: t over the policies' SRs), and the mean episode length."""
     if row.status:
         return {"SR": None, "SR 95 % low": None, "SR 95 % high": None, "Episode length mean": None}
-    s = stability_summary(row.data[need])  # one run: its SR and mean length
-    low, high = stats.interval(*stats.successes(row.data[need]))
+    s = stability_summary(row.data[need])
+    low, high = (s["sr_low"], s["sr_high"]) if s["policies"] > 1 else stats.interval(*stats.successes(row.data[need]))
     return {"SR": s["sr_mean"], "SR 95 % low": low, "SR 95 % high": high, "Episode length mean": s["length_mean"]}
 
 
@@ -117,16 +156,19 @@ def generalization_columns(row: Row) -> dict:
     train_sr = None if row.status else success_rate(row.data["train_seeds"])
     gap = None if train_sr is None or s["SR mean"] is None else train_sr - s["SR mean"]
     return {"Fusion": row.policy["fusion"], "Training-seed SR": train_sr, "Held-out SR": s["SR mean"],
-            "Held-out SR std": s["SR std"], "Gap": gap}
+            "Held-out SR std": s.get("SR std", s.get("SR std over policies")), "Gap": gap}
 
 
 def window_columns(row: Row) -> dict:
+    """Table 5.7; with K policies, each policy's best epoch and the mean over policies of the reward at its peak."""
     p = row.policy
-    best = {} if row.status else row.data["best"]
-    peak = next((r["mean_return"] for r in best.get("sweep", []) if r["checkpoint"] == best["epoch"]), None)
+    best = [] if row.status else row.data["best"]
+    peaks = [r["mean_return"] for b in best for r in b.get("sweep", []) if r["checkpoint"] == b["epoch"]]
+    epochs = [b["epoch"] for b in best]
     seq = None if row.status else row.data["checkpoints"]["sequence_length"]
     return {"T": p["window"], "Sequence length": seq, "Minutes/epoch": _minutes_per_epoch(row), "Epochs": p["epochs"],
-            "Best epoch": best.get("epoch"), "Reward at peak": peak, **_stability(row)}
+            "Best epoch": (epochs[0] if len(epochs) == 1 else ", ".join(map(str, epochs))) if epochs else None,
+            "Reward at peak": float(np.mean(peaks)) if peaks else None, **_stability(row)}
 
 
 def setting_columns(header: str, key: str):
@@ -146,6 +188,8 @@ def build(columns, rows: list[Row]) -> pl.DataFrame:
             s = stability_summary(runs)
             r |= {"Episodes per run": s["episodes_per_run"], "Runs": s["runs"],
                   "Trivial excluded": s["trivial_excluded"]}
+            if s["policies"] > 1:
+                r["Policies"] = s["policies"]
         out.append(r)
     frame = pl.DataFrame(out, infer_schema_length=None)
     if any(r.status for r in rows):

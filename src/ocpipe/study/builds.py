@@ -1,0 +1,96 @@
+"""Two independent builds of one recipe, side by side: the configured K policies (replicate_seed_offset) and the
+next K (offset + K), trained on the same stores and evaluated on their own blocks of the test pool. Two checks:
+no finding's claim is resolved one way in one build and the other way in the other, and each row's mean success
+rate lies within the other build's 95 % interval."""
+
+from __future__ import annotations
+
+import polars as pl
+
+from ..util.atomic import atomic_path
+from . import by_policy, findings, report, tables, targets
+from .registry import TABLES
+
+
+def second_build(config: dict) -> dict:
+    """The config of the build after this one: the next K policies on the same stores."""
+    return {**config, "replicate_seed_offset": config["replicate_seed_offset"] + config["replicates"]}
+
+
+def _label(config: dict) -> str:
+    first = config["replicate_seed_offset"]
+    return f"policies {first}-{first + config['replicates'] - 1}"
+
+
+def inputs(config: dict, scope: str) -> list[str]:
+    """Every episode file both builds' findings of ``scope`` read."""
+    out = targets.findings_inputs(config, scope)
+    return out + [f for f in targets.findings_inputs(second_build(config), scope) if f not in out]
+
+
+def _checks(config: dict, finding: findings.Finding, runs_dir) -> tuple[list, str]:
+    rows = {r.label: r for r in report.table_rows(config, finding.table, finding.needs, runs_dir)}
+    reason = findings.not_run(finding, rows)
+    if reason:
+        return [], reason
+    checks = finding.judge(rows)
+    return checks, by_policy.verdict([c.outcome for c in checks])
+
+
+def compare_findings(config: dict, scope: str, runs_dir="results/runs") -> pl.DataFrame:
+    a, b = config, second_build(config)
+    out = []
+    for fid in findings.SCOPES[scope]:
+        finding = findings.BY_ID[fid]
+        (ca, va), (cb, vb) = _checks(a, finding, runs_dir), _checks(b, finding, runs_dir)
+        both_ways = any({x.outcome, y.outcome} == {"holds", "violated"} for x, y in zip(ca, cb, strict=False))
+        p = [max((c.p for c in cs if c.p is not None), default=None) for cs in (ca, cb)]
+        out.append({"Finding": fid, "Claim": finding.claim, f"Verdict, {_label(a)}": va, f"p, {_label(a)}": p[0],
+                    f"Verdict, {_label(b)}": vb, f"p, {_label(b)}": p[1],
+                    "Resolved both ways": "yes" if both_ways else "no"})
+    return pl.DataFrame(out, infer_schema_length=None)
+
+
+def _summary(config: dict, table: str, runs_dir) -> dict[str, dict]:
+    return {r.label: tables.stability_summary(r.data["stability"])
+            for r in report.table_rows(config, table, ("stability",), runs_dir) if r.status is None}
+
+
+def compare_rows(config: dict, scope: str, runs_dir="results/runs") -> pl.DataFrame:
+    """Each row of the scope's success-rate tables: both builds' mean and 95 % interval over policies, and whether
+    each mean lies within the other's interval."""
+    a, b = config, second_build(config)
+    out = []
+    for table in dict.fromkeys(findings.BY_ID[f].table for f in findings.SCOPES[scope]):
+        if "stability" not in TABLES[table].needs:
+            continue
+        sa, sb = _summary(a, table, runs_dir), _summary(b, table, runs_dir)
+        for label in sa:
+            x, y = sa[label], sb[label]
+            if x["policies"] < 2:
+                raise ValueError("comparing builds needs an interval over policies: config `replicates` >= 2")
+            out.append({"Table": table.replace("table", "").replace("_", "."), "Method": label,
+                        f"SR mean, {_label(a)}": x["sr_mean"], "95 % low A": x["sr_low"], "95 % high A": x["sr_high"],
+                        f"SR mean, {_label(b)}": y["sr_mean"], "95 % low B": y["sr_low"], "95 % high B": y["sr_high"],
+                        "A within B's interval": "yes" if y["sr_low"] <= x["sr_mean"] <= y["sr_high"] else "no",
+                        "B within A's interval": "yes" if x["sr_low"] <= y["sr_mean"] <= x["sr_high"] else "no"})
+    return pl.DataFrame(out, infer_schema_length=None)
+
+
+def write(config: dict, scope: str, csv_path, rows_csv_path, md_path, runs_dir="results/runs") -> tuple[bool, bool]:
+    """Both comparisons, as CSVs and one Markdown page; returns (no finding resolved both ways, every mean within
+    the other build's interval)."""
+    f, r = compare_findings(config, scope, runs_dir), compare_rows(config, scope, runs_dir)
+    tables.write_csv(f, csv_path)
+    tables.write_csv(r, rows_csv_path)
+    agree = (f["Resolved both ways"] == "no").all()
+    within = r.is_empty() or ((r["A within B's interval"] == "yes") & (r["B within A's interval"] == "yes")).all()
+    a, b = _label(config), _label(second_build(config))
+    text = (report.markdown(f, f"Two builds of one recipe: {a} and {b}", "Pass when no claim is resolved one way "
+                            f"in one build and the other way in the other: {'pass' if agree else 'FAIL'}.")
+            + "\n" + report.markdown(r, "Each row's mean success rate against the other build's 95 % interval",
+                                     f"Pass when every mean lies within the other's interval: "
+                                     f"{'pass' if within else 'FAIL'}."))
+    with atomic_path(md_path) as tmp:
+        tmp.write_text(text)
+    return bool(agree), bool(within)
