@@ -26,8 +26,8 @@ def test_each_lever_is_tested_against_its_experiments_baseline(tmp_path):
     config = {"profile": "test", "levers": {"episodes": 20, "sets": {
         "a": {"experiment": "goal2d"}, "a_off": {"experiment": "goal2d", "policy": {"visual_dropout": 0.0}},
         "b": {"experiment": "goal3d", "policy": {"visual_head": "none"}}}}}
-    inputs = {"a": _files(tmp_path, "a", 4), "a_off": _files(tmp_path, "a_off", 14, err=0.02),
-              "b": _files(tmp_path, "b", 9, readout=False)}
+    inputs = {"a": [_files(tmp_path, "a", 4)], "a_off": [_files(tmp_path, "a_off", 14, err=0.02)],
+              "b": [_files(tmp_path, "b", 9, readout=False)]}
     table = levers.write(config, inputs, tmp_path / "levers.csv", tmp_path / "levers.md")
     rows = {r["Lever"]: r for r in table.iter_rows(named=True)}
     assert rows["a"]["Changes"] == "baseline" and rows["a"]["p vs baseline"] is None
@@ -40,7 +40,8 @@ def test_each_lever_is_tested_against_its_experiments_baseline(tmp_path):
     assert rows["a"]["Train min"] == 1.0 and rows["a_off"]["Open-loop joint error (rad)"] == 0.02
     assert rows["a"]["Read-out error (cm)"] == 1.0 and rows["b"]["Read-out error (cm)"] is None
     md = (tmp_path / "levers.md").read_text()
-    assert "same 20 seeds of the validation pool" in md and "| a_off | goal2d | visual_dropout=0.0 |" in md
+    assert "same 20 seeds of the validation pool" in md and "Fisher's exact test" in md
+    assert "| a_off | goal2d | visual_dropout=0.0 |" in md
     assert pl.read_csv(tmp_path / "levers.csv")["Lever"].to_list() == ["a", "a_off", "b"]
 
 
@@ -49,7 +50,7 @@ def test_a_lever_resolves_over_its_experiment_and_bad_levers_are_named(default_c
     assert lever == {**resolve(default_config, "goal2d"), "dropout": 0.1, "epochs": 16, "save_every": 8,
                      "name": "goal2d_dropout"}
     sets = default_config["levers"]["sets"]
-    bad = {**default_config, "levers": {"episodes": 500, "build": ["goal2d", "goal2d_typo"], "sets": {
+    bad = {**default_config, "levers": {"episodes": 500, "replicates": 1, "build": ["goal2d", "goal2d_typo"], "sets": {
         **sets, "x": {"experiment": "nope"}, "y": {"experiment": "goal2d", "policy": {"visual_head": "none",
                                                                                        "object_readout": False}}}}}
     with pytest.raises(C.ConfigError) as err:
@@ -61,5 +62,20 @@ def test_a_lever_resolves_over_its_experiment_and_bad_levers_are_named(default_c
     assert "levers.build: 'goal2d_typo' is not a lever under levers.sets" in msg
     assert "'goal2d' is not" not in msg
     with pytest.raises(C.ConfigError, match="levers.sets.z.policy.widht"):
-        C.validate({**default_config, "levers": {"episodes": 2, "sets": {"z": {"experiment": "goal2d",
+        C.validate({**default_config, "levers": {"episodes": 2, "replicates": 1, "sets": {"z": {"experiment": "goal2d",
                                                                                 "policy": {"widht": 3}}}}})
+
+
+def test_a_lever_of_several_policies_is_tested_across_them(tmp_path):
+    config = {"profile": "test", "levers": {"episodes": 20, "sets": {
+        "a": {"experiment": "goal2d"}, "a_off": {"experiment": "goal2d", "policy": {"visual_dropout": 0.0}}}}}
+    # the baseline's policies spread from 2 to 18 of 20; the lever's sit at 12-13: pooled, 62 of 100 against 50
+    # of 100 would be p ~ 0.11 by Fisher, and across policies the spread leaves it far from resolved
+    inputs = {"a": [_files(tmp_path, f"a{i}", k) for i, k in enumerate((2, 18, 6, 14, 10))],
+              "a_off": [_files(tmp_path, f"o{i}", k, err=0.02) for i, k in enumerate((12, 13, 12, 13, 12))]}
+    table = levers.write(config, inputs, tmp_path / "levers.csv", tmp_path / "levers.md")
+    rows = {r["Lever"]: r for r in table.iter_rows(named=True)}
+    assert (rows["a_off"]["Policies"], rows["a_off"]["Successes"], rows["a_off"]["Episodes"]) == (5, 62, 100)
+    assert rows["a"]["SR"] == 0.5  # exact: five rates k/20 whose mean is 10/20, each a multiple of 1/20 summed
+    assert rows["a_off"]["p vs baseline"] > 0.2
+    assert "Welch's t over the policies' SRs" in (tmp_path / "levers.md").read_text()

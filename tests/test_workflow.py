@@ -15,6 +15,7 @@ import yaml
 from conftest import REPO
 from tolerances import EPS16, EPS32, reduction_atol
 
+from ocpipe import paths
 from ocpipe.frames import render
 from ocpipe.frames import store as frames_store
 from ocpipe.paths import split_policy
@@ -303,15 +304,19 @@ def test_dry_run_of_all_audits_the_whole_study_on_both_configs(tmp_path):
 
 
 def test_a_baseline_lever_reads_its_experiments_run_instead_of_training_a_copy(tmp_path):
-    sets = yaml.safe_load((REPO / "config" / "config.yaml").read_text())["levers"]["sets"]
+    levers = yaml.safe_load((REPO / "config" / "config.yaml").read_text())["levers"]
+    sets = {name: levers["sets"][name] for name in levers["build"]}
     out = snakemake(tmp_path, "-n", "levers").stdout
     blocks = re.split(r"\n(?=\S*rule )", out)
     trained = {m for b in blocks if b.lstrip().startswith(("rule lever_train:", "localrule lever_train:"))
-               for m in re.findall(r"wildcards: lever=([\w-]+)", b)}
-    assert trained == {name for name, spec in sets.items() if spec.get("policy")}
+               for m in re.findall(r"wildcards: lever=([\w@-]+)", b)}
+    # each lever with overrides trains its K policies; a baseline's policy k is its experiment's policy k
+    k = levers["replicates"]
+    assert trained == {paths.policy_id(name, i) for name, spec in sets.items() if spec.get("policy") for i in range(k)}
     for name, spec in sets.items():
         if not spec.get("policy"):
             assert f"results/runs/{spec['experiment']}/checkpoints" in out
+            assert f"results/runs/{spec['experiment']}@{k - 1}/checkpoints" in out
             assert f"results/levers/{name}/checkpoints" not in out
 
 

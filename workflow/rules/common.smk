@@ -12,7 +12,7 @@ wildcard_constraints:
     res=r"\d+",
     shard=r"\d+",
     exp=r"[A-Za-z0-9][A-Za-z0-9_-]*(@[1-9][0-9]*)?",  # a policy id (paths.policy_id): experiment[@replicate]
-    lever=r"[A-Za-z0-9][A-Za-z0-9_-]*",
+    lever=r"[A-Za-z0-9][A-Za-z0-9_-]*(@[1-9][0-9]*)?",  # a lever's policy id (paths.policy_id)
 
 
 def cfg(*sections):
@@ -112,8 +112,9 @@ def policy_of(w):
 
 
 def training_seed(w):
-    """Policy k of an experiment trains with seed + k (config `replicates`): policy 0 with the root seed itself."""
-    return config["seed"] + paths.split_policy(w.exp)[1]
+    """Policy k of an experiment (or lever) trains with seed + k (config `replicates`): policy 0 with the root seed
+    itself."""
+    return config["seed"] + paths.split_policy(w.get("exp") or w.lever)[1]
 
 
 def train_inputs(w):
@@ -155,21 +156,22 @@ def failure_inputs(exp):
 
 # levers (workflow/rules/levers.smk)
 def lever_of(w):
-    """The resolved policy settings of the job's lever."""
-    return _exp.resolve_lever(config, w.lever)
+    """The resolved policy settings of the job's lever (``lever``: one of its policies, paths.policy_id)."""
+    return _exp.resolve_lever(config, paths.split_policy(w.lever)[0])
 
 
 def lever_train_inputs(w):
     return train_inputs_of(lever_of(w))
 
 
-def lever_trained_in(lever):
-    """The folder holding a lever's checkpoints and train log. A lever without overrides is its experiment's
-    baseline: the same settings and seed train the same policy, so it reads the experiment's own run."""
+def lever_trained_in(pid):
+    """The folder holding a lever policy's checkpoints and train log. A lever without overrides is its experiment's
+    baseline: the same settings and seed train the same policy, so its policy k reads the experiment's policy k."""
+    lever, k = paths.split_policy(pid)
     spec = config["levers"]["sets"][lever]
     if not spec.get("policy"):
-        return paths.RUN.format(exp=spec["experiment"])
-    return paths.LEVER.format(lever=lever)
+        return paths.RUN.format(exp=paths.policy_id(spec["experiment"], k))
+    return paths.LEVER.format(lever=pid)
 
 
 def lever_eval_inputs(w):
@@ -182,10 +184,13 @@ def lever_eval_inputs(w):
 
 
 LEVER_FILES = {
-    name: (
-        f"{lever_trained_in(name)}/train_log.parquet",
-        f"{paths.LEVER_EVAL}.episodes.parquet".format(lever=name),
-        f"{paths.LEVER_EVAL}.steps.parquet".format(lever=name),
-    )
+    name: [
+        (
+            f"{lever_trained_in(pid)}/train_log.parquet",
+            f"{paths.LEVER_EVAL}.episodes.parquet".format(lever=pid),
+            f"{paths.LEVER_EVAL}.steps.parquet".format(lever=pid),
+        )
+        for pid in (paths.policy_id(name, k) for k in range(config["levers"]["replicates"]))
+    ]
     for name in config["levers"].get("build") or config["levers"]["sets"]
 }

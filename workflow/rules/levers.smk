@@ -1,5 +1,6 @@
-# Levers (config `levers.sets`): candidate changes to the recipe, each trained once and evaluated on the validation
-# pool, never on a table's seeds; the levers table sets each beside its experiment's baseline.
+# Levers (config `levers.sets`): candidate changes to the recipe, each trained as `levers.replicates` policies and
+# evaluated on the validation pool, never on a table's seeds; the levers table sets each beside its experiment's
+# baseline.
 
 
 use rule train as lever_train with:
@@ -14,7 +15,7 @@ use rule train as lever_train with:
         "results/benchmarks/lever_train/{lever}.tsv"
     params:
         policy=lever_of,
-        seed=config["seed"],
+        seed=training_seed,
         camera_approx=config["camera_approx"],
 
 
@@ -46,7 +47,7 @@ rule lever_eval:
 rule levers:
     """The levers table: results/tables/levers.{csv,md}."""
     input:
-        [f for files in LEVER_FILES.values() for f in files],
+        [f for policies in LEVER_FILES.values() for files in policies for f in files],
     output:
         csv=f"{paths.TABLE_DIR}/levers.csv",
         md=f"{paths.TABLE_DIR}/levers.md",

@@ -1,7 +1,8 @@
-"""The levers table: every candidate change to the recipe (config `levers.sets`), trained once and evaluated on
-the same validation-pool episodes, beside its experiment's baseline (the lever of that experiment without
-overrides). Each row: what it changes, training time, the open-loop error on held-out demos, successes, the
-object read-out's closed-loop error, and Fisher's exact test (two-sided) against the baseline's successes."""
+"""The levers table: every candidate change to the recipe (config `levers.sets`), trained as `levers.replicates`
+policies, each evaluated on the same validation-pool episodes, beside its experiment's baseline (the lever of that
+experiment without overrides). Each row: what it changes, training time, the open-loop error on held-out demos,
+successes, the object read-out's closed-loop error, and a two-sided test against the baseline (Fisher's exact test
+on one policy each, Welch's t over the policies' SRs with several)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import numpy as np
 import polars as pl
 
 from ..util.atomic import atomic_path
-from . import stats
+from . import by_policy, stats
 from .report import markdown
 
 
@@ -24,40 +25,57 @@ def readout_error_cm(steps: pl.DataFrame) -> float | None:
     return round(float(np.median(err[free])), 2)
 
 
-def lever_row(name: str, lever: dict, train_log: pl.DataFrame, episodes: pl.DataFrame, steps: pl.DataFrame) -> dict:
-    k, n = stats.successes(episodes)
+def lever_row(name: str, lever: dict, policies: list[tuple[pl.DataFrame, pl.DataFrame, pl.DataFrame]]) -> dict:
+    """One lever from its policies' (train log, episodes, steps): training minutes and open-loop error averaged over
+    them, successes per policy and in all."""
+    counts = [stats.successes(eps) for _, eps, _ in policies]
+    errors = [log.row(-1, named=True).get("val_joint_err_rad") for log, _, _ in policies]
+    readout = [readout_error_cm(steps) for _, _, steps in policies]
     overrides = ", ".join(f"{k}={v}" for k, v in lever.get("policy", {}).items()) or "baseline"
-    last = train_log.row(-1, named=True)
-    return {"Lever": name, "Experiment": lever["experiment"], "Changes": overrides,
-            "Train min": round(float(train_log["seconds"].sum()) / 60, 1),
-            "Open-loop joint error (rad)": last.get("val_joint_err_rad"),
-            "Successes": k, "Episodes": n,
-            "Read-out error (cm)": readout_error_cm(steps)}
+    return {"Lever": name, "Experiment": lever["experiment"], "Changes": overrides, "Policies": len(policies),
+            "Train min": round(float(np.mean([log["seconds"].sum() for log, _, _ in policies])) / 60, 1),
+            "Open-loop joint error (rad)": None if None in errors else float(np.mean(errors)),
+            "Successes": sum(k for k, _ in counts), "Episodes": sum(n for _, n in counts),
+            "Read-out error (cm)": None if None in readout else round(float(np.median(readout)), 2),
+            "_counts": counts}
+
+
+def _p_vs_baseline(r: dict, b: dict) -> float:
+    """Two-sided: Fisher's exact test on one policy each; with more, Welch's t over the policies' SRs
+    (by_policy: the policy is the unit)."""
+    if r["Policies"] == 1 and b["Policies"] == 1:
+        return stats.fisher(r["_counts"][0], b["_counts"][0], "two-sided")
+    values = (by_policy.PolicyValues.of_counts(x["_counts"]) for x in (r, b))
+    w = by_policy.Welch.of(*values)
+    return min(1.0, 2 * min(w.p_below(), w.p_above()))
 
 
 def with_tests(rows: list[dict]) -> pl.DataFrame:
-    """Rows with their SR and Fisher's exact p against their experiment's baseline (None where there is none)."""
+    """Rows with their SR (mean over policies, and its std) and the p against their experiment's baseline (None
+    where there is none)."""
     base = {r["Experiment"]: r for r in rows if r["Changes"] == "baseline"}
     for r in rows:
-        r["SR"] = r["Successes"] / r["Episodes"] if r["Episodes"] else None
+        rates = [k / n for k, n in r["_counts"] if n]
+        r["SR"] = float(np.mean(rates)) if rates else None
+        r["SR std over policies"] = float(np.std(rates, ddof=1)) if len(rates) > 1 else None
         b = base.get(r["Experiment"])
-        r["p vs baseline"] = None
-        if b is not None and b is not r:
-            r["p vs baseline"] = stats.fisher((r["Successes"], r["Episodes"]), (b["Successes"], b["Episodes"]),
-                                              "two-sided")
-    return pl.DataFrame(rows)
+        r["p vs baseline"] = _p_vs_baseline(r, b) if b is not None and b is not r else None
+    return pl.DataFrame([{k: v for k, v in r.items() if k != "_counts"} for r in rows])
 
 
-def write(config: dict, inputs: dict[str, tuple], csv_path, md_path) -> pl.DataFrame:
-    """``inputs``: lever name -> (train log, episodes file, steps file)."""
+def write(config: dict, inputs: dict[str, list[tuple]], csv_path, md_path) -> pl.DataFrame:
+    """``inputs``: lever name -> its policies' (train log, episodes file, steps file)."""
     sets = config["levers"]["sets"]
-    rows = [lever_row(name, sets[name], pl.read_parquet(log), pl.read_parquet(eps), pl.read_parquet(steps))
-            for name, (log, eps, steps) in inputs.items()]
+    rows = [lever_row(name, sets[name], [tuple(pl.read_parquet(f) for f in files) for files in policies])
+            for name, policies in inputs.items()]
     table = with_tests(rows)
-    n = config["levers"]["episodes"]
-    footer = (f"Profile {config.get('profile', '?')}. Every lever trained once and evaluated on the same {n} seeds of "
-              "the validation pool (never a table's seeds); p: Fisher's exact test, two-sided, against the lever of "
-              "the same experiment without overrides. A difference is resolved only where p < 0.05.")
+    n, k = config["levers"]["episodes"], max(r["Policies"] for r in rows)
+    test = ("Fisher's exact test, two-sided" if k == 1 else
+            "Welch's t over the policies' SRs, two-sided (floored at one policy's binomial noise)")
+    footer = (f"Profile {config.get('profile', '?')}. Every lever trained as {k} "
+              f"{'policy' if k == 1 else 'policies'}, each evaluated on the same {n} seeds of the validation pool "
+              f"(never a table's seeds); p: {test}, against the lever of the same experiment without overrides. A "
+              "difference is resolved only where p < 0.05.")
     with atomic_path(csv_path) as tmp:
         table.write_csv(tmp)
     with atomic_path(md_path) as tmp:
