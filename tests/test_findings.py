@@ -54,7 +54,7 @@ def test_the_study_reproduced(one_policy_config, tmp_path):
     })
     # finding 3's 'No Grasp about the same' needs an equivalence test, which one policy's episodes do not offer
     assert [got[i]["Verdict"] for i in (1, 2, 3)] == ["reproduced", "reproduced",
-                                                      "not contradicted, could not resolve ±10 points"]
+                                                      "not contradicted, one policy per row: no equivalence test"]
     assert got[1]["This build"] == ("SR Pure Visual 12/120 (10.0 %) < 2D-Spatial-Proj 60/120 (50.0 %); "
                                     "SR 2D-Spatial-Proj 60/120 (50.0 %) < Explicit-3D-GT 93/120 (77.5 %)")
     assert got[1]["p"] < 0.05 and got[1]["Study"] == "31.0 / 55.0 / 71.7 %"
@@ -81,7 +81,7 @@ def test_findings_without_weights_or_rows_say_what_is_missing(one_policy_config,
     assert len(got) == 12
     assert got[5]["Verdict"].startswith("not run: DINO CLS needs weights")
     # every weighting equal to uniform: one policy's episodes cannot show 'at most', only fail to reject it
-    assert got[10]["Verdict"] == "not contradicted, could not resolve ±10 points"
+    assert got[10]["Verdict"] == "not contradicted, one policy per row: no equivalence test"
     del one_policy_config["tables"]["table5_6"]["Cross-attention"]
     row = report.write_findings(one_policy_config, "findings", tmp_path / "g.csv", tmp_path / "g.md",
                                 str(tmp_path / "runs")).row(6, named=True)

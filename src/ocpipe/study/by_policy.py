@@ -190,12 +190,15 @@ def above_share(a: PolicyValues, share: float, alpha: float = ALPHA) -> Result:
     return Result(f"t over policies against {share:g}, one-sided", p, outcome, w.resolvable_gap(alpha))
 
 
-def verdict(outcomes: list[str], margin: float = MARGIN) -> str:
-    """A finding's verdict from its checks' outcomes, worst first."""
+def verdict(outcomes: list[str], margin: float | None = MARGIN) -> str:
+    """A finding's verdict from its checks' outcomes, worst first; ``margin`` None: rows of one policy, whose 'about
+    the same' and 'at most' claims no equivalence test could show."""
     found = set(outcomes)
+    unshown = (f"not contradicted, could not resolve ±{100 * margin:.0f} points" if margin is not None
+               else "not contradicted, one policy per row: no equivalence test")
     for outcome, says in (("violated", "not reproduced"), ("opposite", "opposite direction, not resolved"),
                           ("tie", "no difference seen, not resolved"), ("unresolved", "same direction, not resolved"),
-                          ("not contradicted", f"not contradicted, could not resolve ±{100 * margin:.0f} points")):
+                          ("not contradicted", unshown)):
         if outcome in found:
             return says
     return "reproduced"

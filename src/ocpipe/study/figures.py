@@ -14,7 +14,7 @@ import polars as pl  # noqa: E402
 from ..evaluation.taxonomy import FUNNEL, counts  # noqa: E402
 from ..evaluation.taxonomy import funnel as funnel_counts
 from ..util.atomic import atomic_path  # noqa: E402
-from .tables import TABLE5_2_CLASSES, by_policy, stability_summary  # noqa: E402
+from .tables import TABLE5_2_CLASSES, per_policy, stability_summary  # noqa: E402
 
 
 def _save(fig, path) -> None:
@@ -38,7 +38,7 @@ def fig5_1(train_logs: dict[str, pl.DataFrame], sweeps: dict[str, pl.DataFrame],
     ax_loss, ax_ret = axes[:2]
     for i, (method, logs) in enumerate(train_logs.items()):
         colour = f"C{i}"
-        for policy in by_policy(logs):  # each trained policy's loss, thin
+        for policy in per_policy(logs):  # each trained policy's loss, thin
             ax_loss.plot(policy["epoch"], policy["loss"], color=colour, alpha=0.25, lw=1)
         mean = logs.group_by("epoch").agg(pl.col("loss").mean()).sort("epoch")
         rolling = mean["loss"].rolling_mean(window_size=window, min_samples=1)
@@ -70,7 +70,7 @@ def fig5_2(stability: dict[str, pl.DataFrame], path) -> None:
     ax.bar(range(len(methods)), [x["length_mean"] for x in s], yerr=[np.nan_to_num(x["length_std"]) for x in s],
            capsize=6, color=[f"C{i}" for i in range(len(methods))])
     for i, m in enumerate(methods):
-        _policy_points(ax, i, [stability_summary(p)["length_mean"] for p in by_policy(stability[m])])
+        _policy_points(ax, i, [stability_summary(p)["length_mean"] for p in per_policy(stability[m])])
     ax.set_xticks(range(len(methods)), methods)
     over = "policies" if any(x["policies"] > 1 for x in s) else "stability runs"
     ax.set(ylabel="mean episode length (steps)", title=f"Episode length over {over} (mean ± std)")

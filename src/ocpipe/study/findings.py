@@ -32,7 +32,7 @@ class Finding:
 
 
 def _policies(frame: pl.DataFrame) -> list[pl.DataFrame]:
-    return tables.by_policy(frame)
+    return tables.per_policy(frame)
 
 
 def _sr(rows, label, need="stability") -> claims.Counts:
@@ -199,4 +199,11 @@ def judge(finding: Finding, rows: dict[str, Row]) -> dict:
     return {**base, "This build": "; ".join(c.text for c in checks),
             "Test": "; ".join(f"{c.test} p={c.p:.3g}" if c.p is not None else c.test for c in checks),
             "p": max(p) if p else None, "Resolvable at 80 % power": "; ".join(resolvable) or None,
-            "Verdict": by_policy.verdict([c.outcome for c in checks])}
+            "Verdict": verdict_of(checks, rows)}
+
+
+def verdict_of(checks: list[stats.Check], rows: dict[str, Row]) -> str:
+    """The verdict of a finding's checks; 'about the same' and 'at most' claims have an equivalence margin only
+    where each row is several policies (tested with the policy as the unit)."""
+    replicated = min((r.policies for r in rows.values() if r.status is None), default=1) > 1
+    return by_policy.verdict([c.outcome for c in checks], by_policy.MARGIN if replicated else None)

@@ -82,9 +82,9 @@ def table_rows(config: dict, table: str, needs=None, runs_dir="results/runs") ->
     for label, exp in targets.rows(config, table).items():
         policy = resolve(config, exp)
         tokens = len(policy["cameras"]) * tokens_per_camera(policy["encoder"], config["encoders"])
-        row = tables.Row(label, policy, status=skip.get(label), visual_tokens=tokens)
+        pids = targets.policies(config, exp)
+        row = tables.Row(label, policy, status=skip.get(label), visual_tokens=tokens, policies=len(pids))
         if row.status is None:
-            pids = targets.policies(config, exp)
             row.data = {need: _load(need, {split_policy(pid)[1]: targets.artefacts(config, pid, need, runs_dir)
                                            for pid in pids})
                         for need in (TABLES[table].needs if needs is None else needs)}
@@ -121,7 +121,8 @@ def write_findings(config: dict, scope: str, csv_path, md_path, runs_dir="result
                  "would move the row, so these p-values are too small (config `replicates`). SR: Fisher's exact test "
                  "on success counts pooled over the stability runs; lengths and rewards: Mann-Whitney U; shares: "
                  "Fisher or binomial")
-    note = (f"Profile {config.get('profile', '?')}. {tests}. p: the largest p-value of the finding's claims; "
+    note = (f"Profile {config.get('profile', '?')}. {tests}. p: the largest p-value of the claims that must resolve "
+            "(with one policy, the order claims); "
             f"reproduced = every claim resolved at p < {stats.ALPHA}; 'not contradicted' = an 'about the same' or "
             "'at most' claim the test could neither show nor reject.")
     return write(frame, csv_path, md_path, "Findings of the study, judged on this build", note)

@@ -44,12 +44,14 @@ def interval(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
     return float(ci.low), float(ci.high)
 
 
-def t_half_width(values, confidence: float = 0.95) -> float:
-    """Half the width of the t interval of the mean of ``values`` (independent policies' SRs): nan for fewer than 2."""
+def t_half_width(values, confidence: float = 0.95, sd: float | None = None) -> float:
+    """Half the width of the t interval of the mean of ``values`` (independent policies' SRs), at their sample SD or
+    the given ``sd``: nan for fewer than 2."""
     v = np.asarray(values, float)
     if len(v) < 2:
         return float("nan")
-    return float(stats.t.ppf((1 + confidence) / 2, len(v) - 1) * v.std(ddof=1) / np.sqrt(len(v)))
+    sd = v.std(ddof=1) if sd is None else sd
+    return float(stats.t.ppf((1 + confidence) / 2, len(v) - 1) * sd / np.sqrt(len(v)))
 
 
 def format_rate(kn: tuple[int, int]) -> str:

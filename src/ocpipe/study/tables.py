@@ -10,7 +10,7 @@ import polars as pl
 from ..evaluation import taxonomy
 from ..evaluation.closed_loop import success_rate
 from ..util.atomic import atomic_path
-from . import stats
+from . import by_policy, stats
 
 TABLE5_2_CLASSES = ("Success", "Near Miss", "Drop", "No Grasp", "Idle", "Unknown")
 
@@ -34,7 +34,7 @@ def _runs_summary(episodes: pl.DataFrame) -> dict:
             "trivial_excluded": int(episodes["trivial"].sum()), "successes": k, "judged": n}
 
 
-def by_policy(episodes: pl.DataFrame) -> list[pl.DataFrame]:
+def per_policy(episodes: pl.DataFrame) -> list[pl.DataFrame]:
     """A row's frame (episodes, classes, logs) split into its policies', in replicate order."""
     if "policy" not in episodes.columns:
         return [episodes]
@@ -46,18 +46,26 @@ def stability_summary(episodes: pl.DataFrame) -> dict:
     (a ``policy`` column): each policy's SR and mean length, as mean, std and 95 % t interval over the policies, and
     beside them the episode noise of one policy's SR (binomial, sqrt(mean p (1 - p) / n)): the spread a policy's
     episodes alone would show."""
-    per = [_runs_summary(p) for p in by_policy(episodes)]
+    per = [_runs_summary(p) for p in per_policy(episodes)]
     if len(per) == 1:
         return {**per[0], "policies": 1}
     srs = [p["sr_mean"] for p in per]
-    half = stats.t_half_width(srs)
+    counts = [(p["successes"], p["judged"]) for p in per]
+    # the interval's SD floored at one policy's binomial noise (by_policy.Welch's floor): policies that happen to
+    # agree exactly (all at 0 of 40) do not make a row's mean certain
+    sd = _std(srs)
+    if all(n for _, n in counts):
+        k, n = (sum(c) for c in zip(*counts, strict=True))
+        sd = float(np.sqrt(by_policy.PolicyValues.of_counts(counts).variance((k + 0.5) / (n + 1))))
+    half = stats.t_half_width(srs, sd=sd)
     noise = np.mean([p["sr_mean"] * (1 - p["sr_mean"]) / p["judged"] for p in per if p["judged"]])
-    return {"sr_mean": float(np.mean(srs)), "sr_std": _std(srs), "sr_low": float(np.mean(srs)) - half,
-            "sr_high": float(np.mean(srs)) + half, "sr_episode_std": float(np.sqrt(noise)),
+    mean = float(np.mean(srs))  # the interval clipped to the rates a success rate can take
+    return {"sr_mean": mean, "sr_std": _std(srs), "sr_low": max(0.0, mean - half), "sr_high": min(1.0, mean + half),
+            "sr_episode_std": float(np.sqrt(noise)),
             "length_mean": float(np.nanmean([p["length_mean"] for p in per])),
             "length_std": _std([p["length_mean"] for p in per]), "episodes_per_run": per[0]["episodes_per_run"],
             "runs": per[0]["runs"], "trivial_excluded": int(episodes["trivial"].sum()), "policies": len(per),
-            "policy_srs": srs}
+            "policy_srs": srs, "policy_counts": counts}
 
 
 def table5_2(methods: dict[str, pl.DataFrame], always: tuple[str, ...] = ()) -> pl.DataFrame:
@@ -94,6 +102,7 @@ class Row:
     data: dict = field(default_factory=dict)
     status: str | None = None  # why the row has no results (weights not given)
     visual_tokens: int | None = None  # per timestep, all cameras
+    policies: int = 1  # trained policies behind the row (config `replicates`)
 
 
 SPREAD_COLUMNS = ("SR mean", "SR std over policies", "SR 95 % low", "SR 95 % high", "SR episode std (one policy)",
@@ -103,12 +112,11 @@ SPREAD_COLUMNS = ("SR mean", "SR std over policies", "SR 95 % low", "SR 95 % hig
 def _stability(row: Row) -> dict:
     """One policy per row: SR and length, mean and std over its stability runs. K policies: mean, std and 95 %
     interval over the policies, with one policy's episode noise beside them (stability_summary)."""
-    many = row.status is None and "policy" in row.data["stability"].columns \
-        and row.data["stability"]["policy"].n_unique() > 1
-    if row.status:
-        return dict.fromkeys(("SR mean", "SR std", "Episode length mean", "Episode length std"))
+    if row.status:  # the columns its table's other rows have
+        return dict.fromkeys(SPREAD_COLUMNS if row.policies > 1 else ("SR mean", "SR std", "Episode length mean",
+                                                                      "Episode length std"))
     s = stability_summary(row.data["stability"])
-    if not many:
+    if s["policies"] == 1:
         return {"SR mean": s["sr_mean"], "SR std": s["sr_std"], "Episode length mean": s["length_mean"],
                 "Episode length std": s["length_std"]}
     return dict(zip(SPREAD_COLUMNS, (s["sr_mean"], s["sr_std"], s["sr_low"], s["sr_high"], s["sr_episode_std"],
@@ -153,7 +161,8 @@ def head_columns(row: Row) -> dict:
 
 def generalization_columns(row: Row) -> dict:
     s = _stability(row)
-    train_sr = None if row.status else success_rate(row.data["train_seeds"])
+    # like the held-out SR: the mean of the policies' own rates
+    train_sr = None if row.status else stability_summary(row.data["train_seeds"])["sr_mean"]
     gap = None if train_sr is None or s["SR mean"] is None else train_sr - s["SR mean"]
     return {"Fusion": row.policy["fusion"], "Training-seed SR": train_sr, "Held-out SR": s["SR mean"],
             "Held-out SR std": s.get("SR std", s.get("SR std over policies")), "Gap": gap}
