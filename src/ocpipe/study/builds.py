@@ -87,7 +87,9 @@ def compare_rows(config: dict, scope: str, runs_dir="results/runs") -> pl.DataFr
     return pl.DataFrame(out, infer_schema_length=None)
 
 
-def _p_apart(x: dict, y: dict) -> float:
+def _p_apart(x: dict, y: dict) -> float | None:
+    if any(n == 0 for _, n in x["policy_counts"] + y["policy_counts"]):
+        return None  # a policy whose every success was trivial has no rate
     w = by_policy.Welch.of(*(by_policy.PolicyValues.of_counts(s["policy_counts"]) for s in (x, y)))
     return min(1.0, 2 * min(w.p_below(), w.p_above()))
 

@@ -40,9 +40,11 @@ def lever_row(name: str, lever: dict, policies: list[tuple[pl.DataFrame, pl.Data
             "_counts": counts}
 
 
-def _p_vs_baseline(r: dict, b: dict) -> float:
+def _p_vs_baseline(r: dict, b: dict) -> float | None:
     """Two-sided: Fisher's exact test on one policy each; with more, Welch's t over the policies' SRs
-    (by_policy: the policy is the unit)."""
+    (by_policy: the policy is the unit). None where a policy judged no episode (every success trivial)."""
+    if any(n == 0 for _, n in r["_counts"] + b["_counts"]):
+        return None
     if r["Policies"] == 1 and b["Policies"] == 1:
         return stats.fisher(r["_counts"][0], b["_counts"][0], "two-sided")
     values = (by_policy.PolicyValues.of_counts(x["_counts"]) for x in (r, b))
