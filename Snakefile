@@ -5,13 +5,16 @@ from pathlib import Path
 
 from ocpipe.config.errors import ConfigError
 from ocpipe.config.validate import validate
+from ocpipe.study import registry
+from ocpipe.study.findings import check_config
 
 
-configfile: Path(workflow.basedir) / "config" / "config.yaml"
+configfile: Path(workflow.current_basedir) / "config" / "config.yaml"
 
 
 try:
     validate(config)
+    check_config(config)  # tables the registry defines, holding every experiment the findings compare
 except ConfigError as err:
     sys.exit(f"ocpipe: {err}")
 
@@ -30,7 +33,7 @@ rule spatial_grounding:
     """The main job: Tables 5.1 and 5.2, the findings they cover (1-3) and figures 5.1-5.3 (Pure Visual / 2D-Spatial-Proj / Explicit-3D-GT and the
     privileged-state control), with the diagnostics and position probes of the visual policies' features store."""
     input:
-        expand(f"{paths.TABLE}.csv", table=("table5_1", "table5_2")),
+        expand(f"{paths.TABLE}.csv", table=registry.tables_in("main")),
         f"{paths.TABLE_DIR}/findings_main.csv",
         expand(paths.FIGURE, figure=("fig5_1", "fig5_2", "fig5_3")),
         paths.features_diagnostics(_exp.features_store(_exp.resolve(config, "goal3d"))),
@@ -46,18 +49,18 @@ rule encodings:
 rule ablations:
     """Tables 5.3-5.9, the findings they cover (4-10) and figures 5.5-5.6 (PickCube)."""
     input:
-        expand(f"{paths.TABLE}.csv", table=[f"table5_{n}" for n in range(3, 10)]),
+        expand(f"{paths.TABLE}.csv", table=registry.tables_in("ablations")),
         f"{paths.TABLE_DIR}/findings_ablations.csv",
-        expand(paths.FIGURE, figure=("fig5_5", "fig5_6")),
+        expand(paths.FIGURE, figure=registry.figures_in("ablations")),
 
 
 rule stackcube:
     """Tables 5.10-5.11, the findings they cover (11-12) and figure 5.7 (StackCube native vs aligned, failures with
     Grasp No Stack, funnel)."""
     input:
-        expand(f"{paths.TABLE}.csv", table=("table5_10", "table5_11")),
+        expand(f"{paths.TABLE}.csv", table=registry.tables_in("stackcube")),
         f"{paths.TABLE_DIR}/findings_stackcube.csv",
-        paths.FIGURE.format(figure="fig5_7"),
+        expand(paths.FIGURE, figure=registry.figures_in("stackcube")),
 
 
 rule two_builds:

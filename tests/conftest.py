@@ -5,6 +5,15 @@ import pytest
 from ocpipe.config import validate as cfgmod
 
 REPO = Path(__file__).resolve().parents[1]
+# fixtures that run the simulator or Snakemake end to end (minutes): a test that needs one is slow, and make
+# test-fast leaves it out; the dry runs beside them take seconds and stay in the fast lane
+SLOW_FIXTURES = {"tiny_run"}
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        if SLOW_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture

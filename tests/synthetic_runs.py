@@ -1,5 +1,5 @@
 """Synthetic evaluation files for the table and findings tests: rows with known success rates, lengths and failure
-classes, written where the workflow would write them (``targets.artefacts``)."""
+classes, written where the workflow would write them (``ocpipe.study.inputs``)."""
 
 import json
 from pathlib import Path
@@ -8,7 +8,7 @@ import polars as pl
 
 from ocpipe.config.experiments import resolve, saved_epochs
 from ocpipe.paths import split_policy
-from ocpipe.study import targets
+from ocpipe.study import inputs, targets
 
 
 def _episodes(successes: int, n: int, steps: int, run: int) -> pl.DataFrame:
@@ -35,20 +35,20 @@ def write_rows(config, runs: Path, rows: dict) -> None:
 
 
 def _write_policy(config, runs: Path, pid: str, per_run: list[int], steps: int, classes: dict[str, int]) -> None:
-    for r, f in enumerate(targets.artefacts(config, pid, "stability", str(runs))):
+    for r, f in enumerate(inputs.STABILITY.files(config, pid, str(runs))):
         Path(f).parent.mkdir(parents=True, exist_ok=True)
         _episodes(per_run[r], 40, steps, r).write_parquet(f)
-    _classes(classes).write_parquet(targets.artefacts(config, pid, "failures", str(runs))[0])
-    train_seeds = targets.artefacts(config, pid, "train_seeds", str(runs))[0]
+    _classes(classes).write_parquet(inputs.FAILURES.files(config, pid, str(runs))[0])
+    train_seeds = inputs.TRAIN_SEEDS.files(config, pid, str(runs))[0]
     _episodes(per_run[0], 40, steps, 0).write_parquet(train_seeds)
     # a training-time run of 30 episodes with run 0's success rate (Table 5.5)
-    training_time = targets.artefacts(config, pid, "training_time", str(runs))[0]
+    training_time = inputs.TRAINING_TIME.files(config, pid, str(runs))[0]
     _episodes(round(per_run[0] * 30 / 40), 30, steps, 0).write_parquet(training_time)
     epochs = saved_epochs(resolve(config, split_policy(pid)[0]))
-    for epoch, f in zip(epochs, targets.artefacts(config, pid, "sweep", str(runs)), strict=True):
+    for epoch, f in zip(epochs, inputs.SWEEP.files(config, pid, str(runs)), strict=True):
         Path(f).parent.mkdir(parents=True, exist_ok=True)
         _episodes(per_run[0], 6, steps, 0).with_columns(checkpoint=pl.lit(epoch)).write_parquet(f)
-    Path(targets.artefacts(config, pid, "best", str(runs))[0]).write_text(json.dumps({"epoch": epochs[-1]}))
+    Path(inputs.BEST.files(config, pid, str(runs))[0]).write_text(json.dumps({"epoch": epochs[-1]}))
 
 
 def classes(near_miss, no_grasp, success, n=120):

@@ -1,10 +1,10 @@
-"""Tests with the trained policy as the unit (ocpipe.study.by_policy): each verdict on synthetic rows, and the false
+"""Tests with the trained policy as the unit (ocpipe.stats.by_policy): each verdict on synthetic rows, and the false
 positive rates of the order and equivalence tests, simulated at the default K and episode budget."""
 
 import numpy as np
 import pytest
 
-from ocpipe.study import by_policy as B
+from ocpipe.stats import by_policy as B
 
 K, EPISODES, SIMS = 5, 40, 2000
 # the Monte Carlo error of a rate of 0.05 estimated from SIMS draws: a test at nominal passes 3 SE above it

@@ -8,7 +8,7 @@ import pytest
 from conftest import REPO
 from tolerances import reduction_atol
 
-from ocpipe.study import compute
+from ocpipe.bookkeeping import compute
 
 HEADER = "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
 
@@ -88,7 +88,7 @@ def test_write_names_the_run_and_an_empty_folder_is_an_error(default_config, ben
 
 
 def test_record_copies_a_whole_runs_tables_and_refuses_part_of_one(default_config, tmp_path):
-    from ocpipe.study import record
+    from ocpipe.bookkeeping import record
 
     tables = tmp_path / "results" / "tables"
     tables.mkdir(parents=True)
@@ -125,7 +125,7 @@ def test_the_compute_jobs_own_benchmark_is_a_table_job():
 
 
 def test_record_blocks_show_the_recorded_files_and_name_a_missing_one(tmp_path):
-    from ocpipe.study import record
+    from ocpipe.bookkeeping import record
 
     (tmp_path / "table5_1.md").write_text("| a |\n|---|\n| 1 |\n")
     text = "# Results\n<!-- record: table5_1.md -->\nold table\nold line\n<!-- /record -->\nafter\n"
@@ -146,7 +146,7 @@ def test_record_blocks_show_the_recorded_files_and_name_a_missing_one(tmp_path):
 
 
 def test_the_committed_record_is_a_whole_run_of_a_named_commit_and_readme_shows_it(default_config):
-    from ocpipe.study import record
+    from ocpipe.bookkeeping import record
 
     rec = REPO / "docs" / "results"
     record.recorded_files(default_config, rec)  # every table, the findings and the compute table, csv and md

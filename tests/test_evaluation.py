@@ -6,7 +6,7 @@ from tolerances import EPS32
 from ocpipe.config.errors import ConfigError
 from ocpipe.config.validate import validate
 from ocpipe.evaluation import closed_loop, jobs, taxonomy
-from ocpipe.study import registry, report, tables
+from ocpipe.study import inputs, registry, report, tables
 
 RULES = {"idle_variance": 0.001, "near_miss_m": 0.10, "stack_near_m": 0.10, "lift_m": 0.02}
 
@@ -169,7 +169,7 @@ def test_table5_1_from_known_rows():
             episodes(2, [False, False, True], [100, 100, 4], trivial=[False, False, True]),
         ]
     )
-    t = tables.build(registry.TABLES["table5_1"].columns, [tables.Row("2D", {}, {"stability": runs})])
+    t = tables.build(registry.TABLES["table5_1"].columns, [tables.Row("2D", {}, {inputs.STABILITY: runs})])
     row = t.row(0, named=True)
     assert row["SR mean"] == pytest.approx(0.5)  # exact: runs 0.5, 1.0, 0.0 are dyadic, so their mean is exact
     assert row["SR std"] == pytest.approx(0.5)  # exact: sample std of (0.5, 1, 0) is sqrt(0.5 / 2), all dyadic
@@ -243,19 +243,30 @@ def test_report_writes_tables_from_run_files(tmp_path, one_policy_config):
 
 
 def test_a_new_table_is_one_registry_entry(tmp_path, one_policy_config, monkeypatch):
+    from ocpipe.config.errors import ConfigError
+    from ocpipe.config.validate import validate
+    from ocpipe.study import findings
+
     runs = tmp_path / "runs"
     for exp, succ in (("a", [True, False]), ("b", [False, False])):
         (runs / exp / "stability").mkdir(parents=True)
         for r in range(2):
             episodes(r, succ, [50, 80]).write_parquet(runs / exp / "stability" / f"run_{r}.episodes.parquet")
-    monkeypatch.setitem(registry.TABLES, "table_dropout", registry.Table(
-        "Dropout", ("stability",), tables.setting_columns("Dropout", "dropout")))
     config = {
         **one_policy_config,
-        "experiments": {"a": {"dropout": 0.0}, "b": {"dropout": 0.3}},
-        "tables": {"table_dropout": {"none": "a", "0.3": "b"}},
+        "experiments": {**one_policy_config["experiments"], "a": {"visual_dropout": 0.0},
+                        "b": {"visual_dropout": 0.3}},
+        "tables": {**one_policy_config["tables"], "table_dropout": {"none": "a", "0.3": "b"}},
         "evaluation": {**one_policy_config["evaluation"], "stability_runs": 2},
     }
+    validate(config)  # the schema leaves table names to the registry
+    with pytest.raises(ConfigError, match="tables.table_dropout: not a table of the study"):
+        findings.check_config(config)
+    monkeypatch.setitem(registry.TABLES, "table_dropout", registry.Table(
+        "Dropout", (inputs.STABILITY,), "ablations", tables.setting_columns("Dropout", "visual_dropout"),
+        varies=("visual_dropout",)))
+    findings.check_config(config)
+    assert "table_dropout" in registry.tables_in("ablations")
     t = report.write_table(config, "table_dropout", tmp_path / "t.csv", tmp_path / "t.md", runs_dir=runs)
     assert t["Dropout"].to_list() == [0.0, 0.3] and t["SR mean"].to_list() == [0.5, 0.0]
     assert (tmp_path / "t.md").read_text().startswith("**Dropout**")

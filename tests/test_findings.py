@@ -2,29 +2,30 @@
 
 from synthetic_runs import classes, write_rows
 
-from ocpipe.study import by_policy, report, stats, targets
+from ocpipe.stats import by_policy, pooled
+from ocpipe.study import findings, report, targets
 
 
 def test_an_order_is_reproduced_only_when_the_episodes_resolve_it():
-    assert stats.rate_less("a", (10, 120), "b", (60, 120)).outcome == "holds"
-    assert stats.rate_less("a", (55, 120), "b", (60, 120)).outcome == "unresolved"
-    assert stats.rate_less("a", (60, 120), "b", (55, 120)).outcome == "opposite"
-    assert stats.rate_less("a", (0, 4), "b", (0, 4)).outcome == "tie"  # equal figures lean neither way
-    assert stats.rate_less("a", (60, 120), "b", (10, 120)).outcome == "violated"
-    check = stats.rate_less("a", (10, 120), "b", (60, 120))
+    assert pooled.rate_less("a", (10, 120), "b", (60, 120)).outcome == "holds"
+    assert pooled.rate_less("a", (55, 120), "b", (60, 120)).outcome == "unresolved"
+    assert pooled.rate_less("a", (60, 120), "b", (55, 120)).outcome == "opposite"
+    assert pooled.rate_less("a", (0, 4), "b", (0, 4)).outcome == "tie"  # equal figures lean neither way
+    assert pooled.rate_less("a", (60, 120), "b", (10, 120)).outcome == "violated"
+    check = pooled.rate_less("a", (10, 120), "b", (60, 120))
     assert check.p < 1e-9 and check.text == "SR a 10/120 (8.3 %) < b 60/120 (50.0 %)"
 
 
 def test_equal_and_at_most_claims_on_one_policy_are_at_best_not_contradicted():
     # one policy's episodes offer no equivalence test: such a claim never 'holds', it fails when resolved against
-    assert stats.rate_equal("a", (50, 120), "b", (58, 120)).outcome == "not contradicted"
-    assert stats.rate_equal("a", (20, 120), "b", (60, 120)).outcome == "violated"
-    assert stats.rate_less("a", (58, 120), "b", (50, 120), strict=False).outcome == "not contradicted"
-    assert stats.rate_less("a", (90, 120), "b", (50, 120), strict=False).outcome == "violated"
-    assert stats.rate_at_most("a", (1, 120), 0.05).outcome == "not contradicted"
-    assert stats.rate_at_most("a", (30, 120), 0.05).outcome == "violated"
-    assert stats.rate_above("a", (70, 80), 0.5, "share").outcome == "holds"
-    assert stats.rate_above("a", (10, 80), 0.5, "share").outcome == "violated"
+    assert pooled.rate_equal("a", (50, 120), "b", (58, 120)).outcome == "not contradicted"
+    assert pooled.rate_equal("a", (20, 120), "b", (60, 120)).outcome == "violated"
+    assert pooled.rate_less("a", (58, 120), "b", (50, 120), strict=False).outcome == "not contradicted"
+    assert pooled.rate_less("a", (90, 120), "b", (50, 120), strict=False).outcome == "violated"
+    assert pooled.rate_at_most("a", (1, 120), 0.05).outcome == "not contradicted"
+    assert pooled.rate_at_most("a", (30, 120), 0.05).outcome == "violated"
+    assert pooled.rate_above("a", (70, 80), 0.5, "share").outcome == "holds"
+    assert pooled.rate_above("a", (10, 80), 0.5, "share").outcome == "violated"
 
 
 def test_verdicts_combine_checks_worst_first():
@@ -85,7 +86,23 @@ def test_findings_without_weights_or_rows_say_what_is_missing(one_policy_config,
     del one_policy_config["tables"]["table5_6"]["Cross-attention"]
     row = report.write_findings(one_policy_config, "findings", tmp_path / "g.csv", tmp_path / "g.md",
                                 str(tmp_path / "runs")).row(6, named=True)
-    assert row["Verdict"] == "not run: table5_6 has no row 'Cross-attention'"
+    assert row["Verdict"] == "not run: table5_6 has no row of experiment 'fusion_cross_attention'"
+    assert findings.config_problems(one_policy_config) == [
+        "tables.table5_6: no row runs experiment 'fusion_cross_attention', which finding 7 (cross-attention fits "
+        "the training seeds better than concatenation, both equal held out (so its gap is larger)) compares"]
+
+
+def test_a_renamed_row_label_keeps_its_finding(one_policy_config, tmp_path):
+    rows = {exp: ([10, 10, 10], 100, classes(near_miss=10, no_grasp=10, success=30))
+            for exp in targets.experiments_of(one_policy_config, ["table5_1", "table5_2"])}
+    before = findings_of(one_policy_config, tmp_path / "a", rows).values()
+    for table in ("table5_1", "table5_2"):
+        one_policy_config["tables"][table] = {f"{label} (renamed)": exp
+                                              for label, exp in one_policy_config["tables"][table].items()}
+    after = list(findings_of(one_policy_config, tmp_path / "b", rows).values())
+    assert [r["Verdict"] for r in after] == [r["Verdict"] for r in before]
+    assert not any(r["Verdict"].startswith("not run") for r in after)
+    assert "Pure Visual (renamed)" in after[0]["This build"]  # the checks name rows by their labels
 
 
 def test_each_target_judges_the_findings_its_tables_cover(one_policy_config, tmp_path):

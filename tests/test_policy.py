@@ -389,6 +389,10 @@ def test_training_writes_checkpoints_and_log_and_a_killed_run_resumes_identicall
     model, settings, meta = load_policy(tmp_path / "full" / "checkpoints" / "epoch_0004.pt")
     assert settings == PolicySettings.of(policy) and meta["K"] == 7 and model.normalizer.action.std.shape == (8,)
     assert not model.training
+    # the trainable parameters, recorded at training time: fewer than the state dict's numbers, which also hold the
+    # Normalizer's statistics
+    trainable = sum(p.numel() for p in model.parameters() if p.requires_grad)
+    assert a["parameters"] == trainable < sum(v.numel() for v in a["model"].values())
 
 
 def test_changed_settings_discard_a_stale_resume_state(tmp_path):

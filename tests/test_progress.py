@@ -4,7 +4,7 @@ from datetime import datetime
 
 import pytest
 
-from ocpipe.study import progress
+from ocpipe.bookkeeping import progress
 
 LOG = """Building DAG of jobs...
 Job stats:

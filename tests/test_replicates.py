@@ -12,7 +12,7 @@ from synthetic_runs import classes, write_rows
 from ocpipe import paths
 from ocpipe.config.seed_pools import pool_problems
 from ocpipe.evaluation.jobs import seeds_for
-from ocpipe.study import report, targets
+from ocpipe.study import inputs, report, targets
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -162,10 +162,10 @@ def test_a_row_without_weights_keeps_the_columns_of_its_replicated_neighbours(de
 
     runs = tmp_path / "runs"
     write_rows(default_config, runs, {"goal2d": _spread(10, [0, 2, 4, 6, 8], 110, classes(1, 1, 20, n=40))})
-    rows = report.table_rows(default_config, "table5_4", ("stability",), str(runs))
+    rows = report.table_rows(default_config, "table5_4", (inputs.STABILITY,), str(runs))
     for row in rows:
         if row.status is None:
-            row.data["train_log"] = pl.DataFrame({"epoch": [1], "seconds": [60.0]})
+            row.data[inputs.TRAIN_LOG] = pl.DataFrame({"epoch": [1], "seconds": [60.0]})
     t = tables.build(registry.TABLES["table5_4"].columns, rows)
     assert "SR std over policies" in t.columns and "SR std" not in t.columns
     by = {r["Method"]: r for r in t.iter_rows(named=True)}
@@ -181,15 +181,16 @@ def test_each_policy_keeps_its_own_best_epoch_and_peak_reward(default_config, tm
                                       for e in ("pure_visual", "window20", "window40")})
     # policy 3 of T=5 picks its first checkpoint, whose sweep returned 2.0 per episode; the others their last (1.0)
     pid = targets.policies(default_config, "pure_visual")[3]
-    first = targets.artefacts(default_config, pid, "sweep", str(runs))[0]
+    first = inputs.SWEEP.files(default_config, pid, str(runs))[0]
     epoch = int(Path(first).name.split("_")[1].split(".")[0])
     import polars as pl
     pl.read_parquet(first).with_columns(**{"return": pl.lit(2.0)}).write_parquet(first)
-    best = targets.artefacts(default_config, pid, "best", str(runs))[0]
+    best = inputs.BEST.files(default_config, pid, str(runs))[0]
     Path(best).write_text(json.dumps({"epoch": epoch, "sweep": [{"checkpoint": epoch, "mean_return": 2.0}]}))
-    rows = {r.label: r for r in report.table_rows(default_config, "table5_7", ("best", "sweep"), str(runs))}
     from ocpipe.study import findings
 
-    peaks = findings._peak_returns(rows, "T=5")
+    rows = findings.by_experiment(report.table_rows(default_config, "table5_7", (inputs.BEST, inputs.SWEEP), str(runs)))
+    label, peaks = findings._peak_returns(rows, "pure_visual")
+    assert label == "T=5"
     assert [set(p) for p in peaks] == [{1.0}, {1.0}, {1.0}, {2.0}, {1.0}]  # exact: literal returns, in policy order
-    assert [b["epoch"] for b in rows["T=5"].data["best"]][3] == epoch
+    assert [b["epoch"] for b in rows["pure_visual"].data[inputs.BEST]][3] == epoch

@@ -20,8 +20,6 @@ from ocpipe.frames import render
 from ocpipe.frames import store as frames_store
 from ocpipe.paths import split_policy
 
-pytestmark = pytest.mark.slow  # Snakemake end to end: minutes (make test-fast leaves them out)
-
 SNAKEMAKE = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile")]
 TINY = yaml.safe_load((REPO / ".test" / "config.yaml").read_text())  # the committed tiny study
 
@@ -61,6 +59,40 @@ def test_bad_config_stops_the_run_naming_the_key(tmp_path):
     proc = snakemake(tmp_path, "-n", "--config", "seed=-3", check=False)
     assert proc.returncode != 0
     assert "seed: -3 is less than the minimum of 0" in proc.stdout + proc.stderr
+
+
+def test_a_table_added_to_the_registry_is_planned_by_its_group_target(tmp_path):
+    """Adding a table is one registry entry plus its rows in config: a Snakefile that adds the entry, then includes
+    the workflow's, plans the table under its group target (here `ablations`) with its rows' experiments."""
+    (tmp_path / "Snakefile").write_text(f"""from ocpipe.study import inputs, registry, tables
+
+registry.TABLES["table_dropout"] = registry.Table(
+    "Visual dropout", (inputs.STABILITY,), "ablations", tables.setting_columns("Dropout", "visual_dropout"),
+    varies=("visual_dropout",))
+
+
+include: {str(REPO / "Snakefile")!r}
+""")
+    (tmp_path / "dropout.yaml").write_text(yaml.safe_dump({
+        "experiments": {"dropout_03": {"visual_dropout": 0.3}},
+        "tables": {"table_dropout": {"no dropout": "pure_visual", "dropout 0.3": "dropout_03"}}}))
+    wrapped = [sys.executable, "-m", "snakemake", "-s", str(tmp_path / "Snakefile"), "--directory", str(tmp_path)]
+    out = subprocess.run([*wrapped, "-n", "ablations", "--configfile", "dropout.yaml"], cwd=tmp_path,
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    assert "results/tables/table_dropout.csv" in out.stdout and "wildcards: exp=dropout_03" in out.stdout
+    # without the registry entry, config validation refuses the table by name
+    refused = snakemake(tmp_path, "-n", "ablations", "--configfile", "dropout.yaml", check=False)
+    assert refused.returncode != 0
+    assert "tables.table_dropout: not a table of the study" in refused.stdout + refused.stderr
+
+
+def test_a_table_without_a_row_a_finding_compares_stops_the_run_naming_the_finding(tmp_path):
+    # config files merge key by key: the 3D row now runs another experiment, so no row of Table 5.1 runs goal3d
+    (tmp_path / "rows.yaml").write_text(yaml.safe_dump({"tables": {"table5_1": {"Explicit-3D-GT": "goal2d_exact"}}}))
+    proc = snakemake(tmp_path, "-n", "--configfile", "rows.yaml", check=False)
+    assert proc.returncode != 0
+    assert "tables.table5_1: no row runs experiment 'goal3d', which finding 1" in proc.stdout + proc.stderr
 
 
 def test_frames_stores_meet_the_contract(tiny_run):
@@ -216,6 +248,30 @@ def test_changing_one_experiment_reruns_only_its_jobs(tiny_run):
     out = snakemake(tiny_run, "--configfile", "changed.yaml", "-n", *TRAINED).stdout
     assert "wildcards: exp=goal2d" in out and "Params have changed since last execution" in out
     assert "rule features:" not in out and "rule frames_shard:" not in out
+
+
+def job_counts(dry_run_output):
+    """Rule -> jobs from a dry run's "Job stats" table."""
+    stats = dry_run_output.split("Job stats:", 1)[1].split("\n\n", 1)[0]
+    return {m[1]: int(m[2]) for m in re.finditer(r"^(\w+)\s+(\d+)$", stats, re.M) if m[1] != "total"}
+
+
+UPSTREAM = {"train", "lever_train", "lever_eval", "features", "frames_shard"}
+BEST_FOLLOWERS = {"stability", "failure_run", "training_time_run", "train_seed_run"}  # they run the chosen checkpoint
+
+
+@pytest.mark.parametrize(("change", "first_rule", "its_output", "not_rerun"), [
+    ({"failure_rules": {"near_miss_m": 0.2}}, "failures", "failures.parquet", UPSTREAM | {"sweep"} | BEST_FOLLOWERS),
+    ({"sweep_alpha": 0.5}, "best", "best.json", UPSTREAM | {"sweep"})])
+def test_a_setting_read_after_the_episodes_reruns_only_what_follows_its_rule(tiny_run, change, first_rule, its_output,
+                                                                              not_rerun):
+    (tiny_run / "later.yaml").write_text(yaml.safe_dump({"evaluation": change}))
+    counts = job_counts(snakemake(tiny_run, "--configfile", "tiny.yaml", "later.yaml", "-n", *TABLES).stdout)
+    # the rule that reads the setting reruns for every policy of the tables, then what follows it; no rule before it
+    policies = len(list((tiny_run / "results" / "runs").glob(f"*/{its_output}")))
+    assert counts.get(first_rule) == policies, counts
+    assert not set(counts) & not_rerun, counts
+    assert "table" in counts and "findings" in counts
 
 
 def test_fusion_table_end_to_end_with_training_seed_runs(tiny_run):

@@ -74,7 +74,7 @@ def config_docs(args) -> int:
 
 
 def compute(args) -> int:
-    from .study import compute
+    from .bookkeeping import compute
 
     out = Path(args.results, "tables")
     compute.write(validate.load(*args.config), Path(args.results, "benchmarks"), out / "compute.csv",
@@ -84,7 +84,7 @@ def compute(args) -> int:
 
 
 def record(args) -> int:
-    from .study import record
+    from .bookkeeping import record
 
     files = record.write(validate.load(*args.config), args.results, args.out, args.command,
                          readme=args.readme or None)
@@ -93,7 +93,7 @@ def record(args) -> int:
 
 
 def progress(args) -> int:
-    from .study import progress
+    from .bookkeeping import progress
 
     print("\n".join(progress.lines(args.workdir, args.cores)))
     return 0

@@ -2,7 +2,7 @@
 # section reruns exactly the jobs that read it), target lists and every input function.
 from ocpipe import paths
 from ocpipe.config import experiments as _exp
-from ocpipe.study import targets
+from ocpipe.study import inputs, targets
 
 
 wildcard_constraints:
@@ -32,6 +32,15 @@ def resources_of(stage):
 
 
 RENDER_ONLY_SIM_KEYS = ("lavapipe_threads", "robot_visual_keep", "ground_cells")
+
+# read after the episodes are run (failure classification, the best checkpoint's choice), never by an evaluation job
+EVALUATION_KEYS_READ_LATER = ("failure_rules", "sweep_alpha")
+
+
+def evaluation_job_params():
+    """The protocol an evaluation job runs: the evaluation section without what only later rules read, so changing
+    a failure threshold reruns `failures` and changing `sweep_alpha` reruns `best`, not one episode."""
+    return {k: v for k, v in config["evaluation"].items() if k not in EVALUATION_KEYS_READ_LATER}
 
 
 def demo_params():
@@ -140,11 +149,11 @@ def eval_inputs(w):
 
 
 def sweep_outputs(exp):
-    return targets.artefacts(config, exp, "sweep")
+    return inputs.SWEEP.files(config, exp)
 
 
 def stability_outputs(exp):
-    return targets.artefacts(config, exp, "stability")
+    return inputs.STABILITY.files(config, exp)
 
 
 def failure_inputs(exp):

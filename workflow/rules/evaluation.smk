@@ -33,7 +33,7 @@ TABLE_CFG = cfg(
 # are built from
 EVAL_PARAMS = {
     "policy": policy_of,
-    "evaluation": config["evaluation"],
+    "evaluation": evaluation_job_params(),
     "cfg": cfg("sim", "cameras", "camera_approx", "frames", "encoders"),
     "seed": config["seed"],
 }
@@ -266,7 +266,7 @@ rule figure:
 
 rule figures5_1_to_5_3:
     input:
-        targets.inputs(config, "table5_1", registry.SPATIAL_FIGURES_NEEDS),
+        targets.inputs(config, registry.SPATIAL_FIGURES_TABLE, registry.SPATIAL_FIGURES_NEEDS),
     output:
         fig5_1=report(
             paths.FIGURE.format(figure="fig5_1"),

@@ -36,7 +36,7 @@ rule lever_eval:
         **resources_of("evaluate"),
     params:
         policy=lever_of,
-        evaluation=config["evaluation"],
+        evaluation=evaluation_job_params(),
         cfg=cfg("sim", "cameras", "camera_approx", "frames", "encoders"),
         seed=config["seed"],
         episodes=config["levers"]["episodes"],

@@ -1,5 +1,5 @@
 # rule compute: where the run's time went, from the rules' benchmark files
-from ocpipe.study import compute
+from ocpipe.bookkeeping import compute
 from ocpipe.util import runlog
 
 with runlog.to_file(snakemake.log[0]):

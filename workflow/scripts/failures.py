@@ -1,6 +1,6 @@
-from ocpipe.study import report
+from ocpipe.evaluation import taxonomy
 from ocpipe.util import runlog
 
 with runlog.to_file(snakemake.log[0]):
-    print(report.classify_episodes(list(snakemake.input.episodes), snakemake.params.task, snakemake.params.rules,
+    print(taxonomy.classify_episodes(list(snakemake.input.episodes), snakemake.params.task, snakemake.params.rules,
                                    snakemake.output.classes))

@@ -13,7 +13,7 @@ import polars as pl
 from ..config.seed_pools import pool_problems, pools, table_blocks
 from ..frames.store import open_store
 from ..paths import split_policy
-from ..study import stats
+from ..stats import pooled
 from ..util.atomic import atomic_path, write_json
 from . import closed_loop
 
@@ -66,7 +66,7 @@ OPEN_LOOP_COLUMNS = ("val_joint_err_rad", "val_first_joint_err_rad", "val_grippe
 
 
 def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None = None,
-                    alpha: float = stats.ALPHA) -> dict:
+                    alpha: float = pooled.ALPHA) -> dict:
     """The checkpoint the sweep's episodes can tell apart from the rest, else the one with the lowest open-loop
     joint error on the held-out demos.
 
@@ -81,7 +81,7 @@ def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None 
     rows = []
     for f in sweep_files:
         eps = pl.read_parquet(f)
-        k, n = stats.successes(eps)
+        k, n = pooled.successes(eps)
         row = {"checkpoint": int(eps["checkpoint"][0]), "sr": closed_loop.success_rate(eps), "successes": k,
                "mean_return": float(eps["return"].mean()), "episodes": n}
         if log is not None:
@@ -96,7 +96,7 @@ def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None 
     default = max(rows, key=open_loop_rank)
     leader = max(rows, key=lambda r: (-1.0 if math.isnan(r["sr"]) else r["sr"], open_loop_rank(r)))
     counts = [(r["successes"], r["episodes"]) for r in (leader, default)]
-    p = 1.0 if leader is default else stats.fisher(*counts, "greater")
+    p = 1.0 if leader is default else pooled.fisher(*counts, "greater")
     resolved = p < alpha
     rows.sort(key=open_loop_rank)
     return {"epoch": (leader if resolved else default)["checkpoint"],
@@ -140,7 +140,7 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
     return episodes
 
 
-def write_best(sweep_files, out_json, train_log=None, alpha: float = stats.ALPHA) -> dict:
+def write_best(sweep_files, out_json, train_log=None, alpha: float = pooled.ALPHA) -> dict:
     best = best_checkpoint(sweep_files, train_log, alpha)
     write_json(out_json, best)
     return best

@@ -11,8 +11,12 @@ StackCube's sub-task funnel counts episodes that reach grasp -> lift -> near tar
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import polars as pl
+
+from ..util.atomic import atomic_path
 
 CLASSES = ("Success", "Idle", "No Grasp", "Drop", "Grasp No Stack", "Near Miss", "Unknown")
 FUNNEL = ("episodes", "grasp", "lift", "near target", "success")
@@ -79,3 +83,15 @@ def funnel(classes: pl.DataFrame) -> dict[str, int]:
         reached &= np.asarray(kept[stage].to_list(), dtype=bool)  # a later stage counts only after earlier ones
         out[stage] = int(reached.sum())
     return out
+
+
+def classify_episodes(episode_files, task: str, rules: dict, out_path) -> pl.DataFrame:
+    """The classes of every episode of the given evaluation runs (each ``*.episodes.parquet`` beside its
+    ``*.steps.parquet``), written to ``out_path``: the `failures` rule."""
+    episodes = pl.concat([pl.read_parquet(f) for f in episode_files], how="vertical")
+    steps = pl.concat([pl.read_parquet(Path(str(f).replace(".episodes.parquet", ".steps.parquet")))
+                       for f in episode_files], how="vertical")
+    classes = classify_run(episodes, steps, task, rules)
+    with atomic_path(out_path) as tmp:
+        classes.write_parquet(tmp)
+    return classes

@@ -29,7 +29,7 @@ from ..features.scenes import open_scenes
 from ..util.atomic import atomic_path
 from ..util.devices import pick_device
 from . import checkpoint, data, readout
-from .model import loss_terms
+from .model import loss_terms, parameter_count
 from .settings import PolicySettings
 from .weighting import loss_weights
 from .windows import action_frames
@@ -69,7 +69,7 @@ def train(policy: PolicySettings | dict, seed: int, features_path, frames_path, 
         log.info("epoch %d: %s", epoch + 1, run.history[-1])
         state = {"model": run.model.state_dict(), "optimizer": run.opt.state_dict(), "policy": policy.as_dict(),
                  "seed": seed, "meta": run.data.meta, "epoch": epoch + 1, "history": run.history,
-                 "fingerprint": run.fingerprint}
+                 "fingerprint": run.fingerprint, "parameters": parameter_count(run.model)}
         if epoch + 1 in keep:
             checkpoint.save(state, run.work / f"epoch_{epoch + 1:04d}.pt")
         checkpoint.save(state, run.work / "state.pt")

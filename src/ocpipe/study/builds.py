@@ -9,8 +9,10 @@ import polars as pl
 
 from ..config.errors import ConfigError
 from ..config.seed_pools import policies_drawn, pool_problems
+from ..stats import by_policy
 from ..util.atomic import atomic_path
-from . import by_policy, findings, report, tables, targets
+from . import findings, report, tables, targets
+from .inputs import STABILITY
 from .registry import TABLES
 
 
@@ -35,7 +37,7 @@ def inputs(config: dict, scope: str) -> list[str]:
 
 
 def _checks(config: dict, finding: findings.Finding, runs_dir) -> tuple[list, str]:
-    rows = {r.label: r for r in report.table_rows(config, finding.table, finding.needs, runs_dir)}
+    rows = findings.by_experiment(report.table_rows(config, finding.table, finding.needs, runs_dir))
     reason = findings.not_run(finding, rows)
     if reason:
         return [], reason
@@ -58,8 +60,8 @@ def compare_findings(config: dict, scope: str, runs_dir="results/runs") -> pl.Da
 
 
 def _summary(config: dict, table: str, runs_dir) -> dict[str, dict]:
-    return {r.label: tables.stability_summary(r.data["stability"])
-            for r in report.table_rows(config, table, ("stability",), runs_dir) if r.status is None}
+    return {r.label: tables.stability_summary(r.data[STABILITY])
+            for r in report.table_rows(config, table, (STABILITY,), runs_dir) if r.status is None}
 
 
 def compare_rows(config: dict, scope: str, runs_dir="results/runs") -> pl.DataFrame:
@@ -71,7 +73,7 @@ def compare_rows(config: dict, scope: str, runs_dir="results/runs") -> pl.DataFr
     a, b = config, second_build(config)
     out = []
     for table in dict.fromkeys(findings.BY_ID[f].table for f in findings.SCOPES[scope]):
-        if "stability" not in TABLES[table].needs:
+        if STABILITY not in TABLES[table].needs:
             continue
         sa, sb = _summary(a, table, runs_dir), _summary(b, table, runs_dir)
         for label in sa:

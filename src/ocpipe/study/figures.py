@@ -14,6 +14,7 @@ import polars as pl  # noqa: E402
 from ..evaluation.taxonomy import FUNNEL, counts  # noqa: E402
 from ..evaluation.taxonomy import funnel as funnel_counts
 from ..util.atomic import atomic_path  # noqa: E402
+from .inputs import STABILITY  # noqa: E402
 from .tables import TABLE5_2_CLASSES, per_policy, stability_summary  # noqa: E402
 
 
@@ -105,7 +106,7 @@ def sr_bars(rows, path, title: str) -> None:
             ax.text(i, 0.03, "\n".join([row.status.split(":")[0], *keys[:1]]), rotation=90, ha="center", va="bottom",
                     fontsize=7, color="grey")
             continue
-        s = stability_summary(row.data["stability"])
+        s = stability_summary(row.data[STABILITY])
         ax.bar(i, s["sr_mean"], yerr=np.nan_to_num(s["sr_std"]), capsize=6, color=f"C{i}")
         _policy_points(ax, i, s.get("policy_srs", []))
     ax.set_xticks(range(len(rows)), [r.label for r in rows], rotation=15, ha="right")

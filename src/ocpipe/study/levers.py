@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
+from ..stats import by_policy, pooled
 from ..util.atomic import atomic_path
-from . import by_policy, stats
 from .report import markdown
 
 
@@ -28,7 +28,7 @@ def readout_error_cm(steps: pl.DataFrame) -> float | None:
 def lever_row(name: str, lever: dict, policies: list[tuple[pl.DataFrame, pl.DataFrame, pl.DataFrame]]) -> dict:
     """One lever from its policies' (train log, episodes, steps): training minutes and open-loop error averaged over
     them, successes per policy and in all."""
-    counts = [stats.successes(eps) for _, eps, _ in policies]
+    counts = [pooled.successes(eps) for _, eps, _ in policies]
     errors = [log.row(-1, named=True).get("val_joint_err_rad") for log, _, _ in policies]
     readout = [readout_error_cm(steps) for _, _, steps in policies]
     overrides = ", ".join(f"{k}={v}" for k, v in lever.get("policy", {}).items()) or "baseline"
@@ -46,7 +46,7 @@ def _p_vs_baseline(r: dict, b: dict) -> float | None:
     if any(n == 0 for _, n in r["_counts"] + b["_counts"]):
         return None
     if r["Policies"] == 1 and b["Policies"] == 1:
-        return stats.fisher(r["_counts"][0], b["_counts"][0], "two-sided")
+        return pooled.fisher(r["_counts"][0], b["_counts"][0], "two-sided")
     values = (by_policy.PolicyValues.of_counts(x["_counts"]) for x in (r, b))
     w = by_policy.Welch.of(*values)
     return min(1.0, 2 * min(w.p_below(), w.p_above()))

@@ -2,35 +2,16 @@
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import polars as pl
 
 from ..config.experiments import resolve
 from ..encoders.registry import tokens_per_camera
-from ..evaluation import taxonomy
 from ..paths import split_policy
+from ..stats import by_policy, pooled
 from ..util.atomic import atomic_path
-from . import by_policy, conditions, figures, findings, stats, tables, targets
-from .registry import FIGURES, SPATIAL_FIGURES_NEEDS, TABLES
-
-
-def _read(files) -> pl.DataFrame:
-    return pl.concat([pl.read_parquet(f) for f in files], how="vertical")
-
-
-def _steps_file(episodes_file) -> Path:
-    return Path(str(episodes_file).replace(".episodes.parquet", ".steps.parquet"))
-
-
-def classify_episodes(episode_files, task: str, rules: dict, out_path) -> pl.DataFrame:
-    episodes = _read(episode_files)
-    steps = _read([_steps_file(f) for f in episode_files])
-    classes = taxonomy.classify_run(episodes, steps, task, rules)
-    with atomic_path(out_path) as tmp:
-        classes.write_parquet(tmp)
-    return classes
+from . import conditions, figures, findings, tables, targets
+from .inputs import FAILURES, STABILITY, SWEEP, TRAIN_LOG
+from .registry import FIGURES, SPATIAL_FIGURES_NEEDS, SPATIAL_FIGURES_TABLE, TABLES
 
 
 def _cell(v) -> str:
@@ -55,26 +36,6 @@ def write(table: pl.DataFrame, csv_path, md_path, title: str, footer: str = "") 
     return table
 
 
-def _checkpoint_facts(checkpoints_dir) -> dict:
-    import torch
-
-    last = sorted(Path(checkpoints_dir).glob("epoch_*.pt"))[-1]
-    state = torch.load(last, map_location="cpu", weights_only=False)["model"]
-    return {"parameters": int(sum(v.numel() for v in state.values())), "sequence_length": int(state["pos"].shape[0])}
-
-
-def _load(need: str, per_policy: dict[int, list[str]]):
-    """One need of a row's K policies (replicate index -> its files): episodes, logs and failure classes as one
-    frame with a ``policy`` column; the best checkpoints as one dict per policy; the model's facts once (every
-    policy of a row has the same architecture)."""
-    if need == "checkpoints":
-        return _checkpoint_facts(next(iter(per_policy.values()))[0])
-    if need == "best":
-        return [{**json.loads(Path(files[0]).read_text()), "policy": k} for k, files in per_policy.items()]
-    return pl.concat([_read(files).with_columns(policy=pl.lit(k)) for k, files in per_policy.items()],
-                     how="vertical")
-
-
 def table_rows(config: dict, table: str, needs=None, runs_dir="results/runs") -> list[tables.Row]:
     """The rows of a table (or of a figure drawing a table's rows), each with the artefacts of its K policies."""
     skip = targets.unavailable(config, table)
@@ -83,10 +44,9 @@ def table_rows(config: dict, table: str, needs=None, runs_dir="results/runs") ->
         policy = resolve(config, exp)
         tokens = len(policy["cameras"]) * tokens_per_camera(policy["encoder"], config["encoders"])
         pids = targets.policies(config, exp)
-        row = tables.Row(label, policy, status=skip.get(label), visual_tokens=tokens, policies=len(pids))
+        row = tables.Row(label, policy, exp=exp, status=skip.get(label), visual_tokens=tokens, policies=len(pids))
         if row.status is None:
-            row.data = {need: _load(need, {split_policy(pid)[1]: targets.artefacts(config, pid, need, runs_dir)
-                                           for pid in pids})
+            row.data = {need: need.load({split_policy(pid)[1]: need.files(config, pid, runs_dir) for pid in pids})
                         for need in (TABLES[table].needs if needs is None else needs)}
         out.append(row)
     return out
@@ -95,7 +55,7 @@ def table_rows(config: dict, table: str, needs=None, runs_dir="results/runs") ->
 def write_table(config: dict, table: str, csv_path, md_path, runs_dir="results/runs") -> pl.DataFrame:
     spec, rows = TABLES[table], table_rows(config, table, runs_dir=runs_dir)
     if spec.columns is None:
-        frame = tables.table5_2({r.label: r.data["failures"] for r in rows if r.status is None}, spec.always_classes)
+        frame = tables.table5_2({r.label: r.data[FAILURES] for r in rows if r.status is None}, spec.always_classes)
     else:
         frame = tables.build(spec.columns, rows)
     return write(frame, csv_path, md_path, spec.title, conditions.footer(config, table))
@@ -106,8 +66,8 @@ def write_findings(config: dict, scope: str, csv_path, md_path, runs_dir="result
     out = []
     for fid in findings.SCOPES[scope]:
         finding = findings.BY_ID[fid]
-        rows = {r.label: r for r in table_rows(config, finding.table, finding.needs, runs_dir)}
-        out.append(findings.judge(finding, rows))
+        out.append(findings.judge(finding, findings.by_experiment(table_rows(config, finding.table, finding.needs,
+                                                                             runs_dir))))
     frame = pl.DataFrame(out, infer_schema_length=None)
     k = config["replicates"]
     if k > 1:
@@ -123,7 +83,7 @@ def write_findings(config: dict, scope: str, csv_path, md_path, runs_dir="result
                  "Fisher or binomial")
     note = (f"Profile {config.get('profile', '?')}. {tests}. p: the largest p-value of the claims that must resolve "
             "(with one policy, the order claims); "
-            f"reproduced = every claim resolved at p < {stats.ALPHA}; 'not contradicted' = an 'about the same' or "
+            f"reproduced = every claim resolved at p < {pooled.ALPHA}; 'not contradicted' = an 'about the same' or "
             "'at most' claim the test could neither show nor reject.")
     return write(frame, csv_path, md_path, "Findings of the study, judged on this build", note)
 
@@ -135,7 +95,7 @@ def write_figure(config: dict, figure: str, out_png, runs_dir="results/runs") ->
 
 
 def write_figures5_1_to_5_3(config: dict, fig5_1, fig5_2, fig5_3, runs_dir="results/runs") -> None:
-    rows = [r for r in table_rows(config, "table5_1", SPATIAL_FIGURES_NEEDS, runs_dir) if r.status is None]
-    figures.fig5_1({r.label: r.data["train_log"] for r in rows}, {r.label: r.data["sweep"] for r in rows}, fig5_1)
-    figures.fig5_2({r.label: r.data["stability"] for r in rows}, fig5_2)
-    figures.fig5_3({r.label: r.data["failures"] for r in rows}, fig5_3)
+    rows = [r for r in table_rows(config, SPATIAL_FIGURES_TABLE, SPATIAL_FIGURES_NEEDS, runs_dir) if r.status is None]
+    figures.fig5_1({r.label: r.data[TRAIN_LOG] for r in rows}, {r.label: r.data[SWEEP] for r in rows}, fig5_1)
+    figures.fig5_2({r.label: r.data[STABILITY] for r in rows}, fig5_2)
+    figures.fig5_3({r.label: r.data[FAILURES] for r in rows}, fig5_3)

@@ -9,8 +9,9 @@ import polars as pl
 
 from ..evaluation import taxonomy
 from ..evaluation.closed_loop import success_rate
+from ..stats import by_policy, pooled
 from ..util.atomic import atomic_path
-from . import by_policy, stats
+from .inputs import BEST, CHECKPOINTS, STABILITY, TRAIN_LOG, TRAIN_SEEDS, TRAINING_TIME, Input
 
 TABLE5_2_CLASSES = ("Success", "Near Miss", "Drop", "No Grasp", "Idle", "Unknown")
 
@@ -28,7 +29,7 @@ def _runs_summary(episodes: pl.DataFrame) -> dict:
         srs.append(success_rate(run))
         lengths.append(float(kept["steps"].mean()) if len(kept) else float("nan"))
         sizes.append(len(run))
-    k, n = stats.successes(episodes)
+    k, n = pooled.successes(episodes)
     return {"sr_mean": float(np.mean(srs)), "sr_std": _std(srs), "length_mean": float(np.mean(lengths)),
             "length_std": _std(lengths), "episodes_per_run": int(np.median(sizes)), "runs": len(srs),
             "trivial_excluded": int(episodes["trivial"].sum()), "successes": k, "judged": n}
@@ -57,7 +58,7 @@ def stability_summary(episodes: pl.DataFrame) -> dict:
     if all(n for _, n in counts):
         k, n = (sum(c) for c in zip(*counts, strict=True))
         sd = float(np.sqrt(by_policy.PolicyValues.of_counts(counts).variance((k + 0.5) / (n + 1))))
-    half = stats.t_half_width(srs, sd=sd)
+    half = pooled.t_half_width(srs, sd=sd)
     noise = np.mean([p["sr_mean"] * (1 - p["sr_mean"]) / p["judged"] for p in per if p["judged"]])
     mean = float(np.mean(srs))  # the interval clipped to the rates a success rate can take
     return {"sr_mean": mean, "sr_std": _std(srs), "sr_low": max(0.0, mean - half), "sr_high": min(1.0, mean + half),
@@ -100,6 +101,7 @@ class Row:
     label: str
     policy: dict
     data: dict = field(default_factory=dict)
+    exp: str = ""  # the experiment the row runs (config `tables`: label -> experiment)
     status: str | None = None  # why the row has no results (weights not given)
     visual_tokens: int | None = None  # per timestep, all cameras
     policies: int = 1  # trained policies behind the row (config `replicates`)
@@ -115,7 +117,7 @@ def _stability(row: Row) -> dict:
     if row.status:  # the columns its table's other rows have
         return dict.fromkeys(SPREAD_COLUMNS if row.policies > 1 else ("SR mean", "SR std", "Episode length mean",
                                                                       "Episode length std"))
-    s = stability_summary(row.data["stability"])
+    s = stability_summary(row.data[STABILITY])
     if s["policies"] == 1:
         return {"SR mean": s["sr_mean"], "SR std": s["sr_std"], "Episode length mean": s["length_mean"],
                 "Episode length std": s["length_std"]}
@@ -124,7 +126,7 @@ def _stability(row: Row) -> dict:
 
 
 def _minutes_per_epoch(row: Row):
-    return None if row.status else float(row.data["train_log"]["seconds"].mean()) / 60.0
+    return None if row.status else float(row.data[TRAIN_LOG]["seconds"].mean()) / 60.0
 
 
 def stability_columns(row: Row) -> dict:
@@ -142,27 +144,27 @@ def representation_columns(row: Row) -> dict:
             "Batch": p["batch_size"], "Minutes/epoch": _minutes_per_epoch(row), **_stability(row)}
 
 
-def _one_run(row: Row, need: str) -> dict:
+def _one_run(row: Row, need: Input) -> dict:
     """SR of one run per policy (trivial successes excluded) with its 95 % interval (one policy: Wilson's over its
     episodes; K policies: t over the policies' SRs), and the mean episode length."""
     if row.status:
         return {"SR": None, "SR 95 % low": None, "SR 95 % high": None, "Episode length mean": None}
     s = stability_summary(row.data[need])
-    low, high = (s["sr_low"], s["sr_high"]) if s["policies"] > 1 else stats.interval(*stats.successes(row.data[need]))
+    low, high = (s["sr_low"], s["sr_high"]) if s["policies"] > 1 else pooled.interval(*pooled.successes(row.data[need]))
     return {"SR": s["sr_mean"], "SR 95 % low": low, "SR 95 % high": high, "Episode length mean": s["length_mean"]}
 
 
 def head_columns(row: Row) -> dict:
     """Table 5.5: one training-time run per head (the study's were 30 episodes each, read qualitatively)."""
     return {"Head": row.policy["visual_head"],
-            "Parameters": None if row.status else row.data["checkpoints"]["parameters"],
-            **_one_run(row, "training_time")}
+            "Parameters": None if row.status else row.data[CHECKPOINTS]["parameters"],
+            **_one_run(row, TRAINING_TIME)}
 
 
 def generalization_columns(row: Row) -> dict:
     s = _stability(row)
     # like the held-out SR: the mean of the policies' own rates
-    train_sr = None if row.status else stability_summary(row.data["train_seeds"])["sr_mean"]
+    train_sr = None if row.status else stability_summary(row.data[TRAIN_SEEDS])["sr_mean"]
     gap = None if train_sr is None or s["SR mean"] is None else train_sr - s["SR mean"]
     return {"Fusion": row.policy["fusion"], "Training-seed SR": train_sr, "Held-out SR": s["SR mean"],
             "Held-out SR std": s.get("SR std", s.get("SR std over policies")), "Gap": gap}
@@ -171,10 +173,10 @@ def generalization_columns(row: Row) -> dict:
 def window_columns(row: Row) -> dict:
     """Table 5.7; with K policies, each policy's best epoch and the mean over policies of the reward at its peak."""
     p = row.policy
-    best = [] if row.status else row.data["best"]
+    best = [] if row.status else row.data[BEST]
     peaks = [r["mean_return"] for b in best for r in b.get("sweep", []) if r["checkpoint"] == b["epoch"]]
     epochs = [b["epoch"] for b in best]
-    seq = None if row.status else row.data["checkpoints"]["sequence_length"]
+    seq = None if row.status else row.data[CHECKPOINTS]["sequence_length"]
     return {"T": p["window"], "Sequence length": seq, "Minutes/epoch": _minutes_per_epoch(row), "Epochs": p["epochs"],
             "Best epoch": (epochs[0] if len(epochs) == 1 else ", ".join(map(str, epochs))) if epochs else None,
             "Reward at peak": float(np.mean(peaks)) if peaks else None, **_stability(row)}
@@ -192,7 +194,7 @@ def build(columns, rows: list[Row]) -> pl.DataFrame:
     out = []
     for row in rows:
         r = {"Method": row.label, **columns(row)}
-        runs = next((row.data[k] for k in ("stability", "training_time") if k in row.data), None)
+        runs = next((row.data[k] for k in (STABILITY, TRAINING_TIME) if k in row.data), None)
         if row.status is None and runs is not None:
             s = stability_summary(runs)
             r |= {"Episodes per run": s["episodes_per_run"], "Runs": s["runs"],

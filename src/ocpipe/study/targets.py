@@ -1,14 +1,14 @@
 """The study's tables and figures as targets: what each reads per row, and where those files live.
 
 A table row is an experiment (config `tables`: table -> row label -> experiment), trained as K policies (config
-`replicates`, from `replicate_seed_offset`). Each table reads a fixed set of per-policy artefacts ("needs"); the
+`replicates`, from `replicate_seed_offset`). Each table reads a fixed set of per-policy inputs (`inputs`); the
 workflow asks for exactly those files, and rows whose encoder needs weight files the config does not give are
 reported as such instead of being built."""
 
 from __future__ import annotations
 
 from .. import paths
-from ..config.experiments import missing_weights, resolve, saved_epochs
+from ..config.experiments import missing_weights, resolve
 from .findings import BY_ID, SCOPES
 from .registry import TABLES
 
@@ -17,24 +17,6 @@ def policies(config: dict, exp: str) -> list[str]:
     """The ids of the K policies this build trains for experiment ``exp`` (paths.policy_id)."""
     first = config["replicate_seed_offset"]
     return [paths.policy_id(exp, k) for k in range(first, first + config["replicates"])]
-
-
-def artefacts(config: dict, pid: str, need: str, runs_dir: str = "results/runs") -> list[str]:
-    """Files under results/runs/{pid}/ (paths.RUN) holding one of a policy's needs; ``pid`` a policy id or an
-    experiment's name (its policy 0)."""
-    exp = paths.split_policy(pid)[0]
-    if need == "stability":
-        return [paths.in_runs(paths.STABILITY, runs_dir, exp=pid, run=r) + ".episodes.parquet"
-                for r in range(config["evaluation"]["stability_runs"])]
-    if need == "sweep":
-        return [paths.in_runs(paths.SWEEP, runs_dir, exp=pid, epoch=f"{e:04d}") + ".episodes.parquet"
-                for e in saved_epochs(resolve(config, exp))]
-    single = {"failures": paths.FAILURES, "train_log": paths.TRAIN_LOG, "checkpoints": paths.CHECKPOINTS,
-              "train_seeds": paths.TRAIN_SEEDS + ".episodes.parquet", "best": paths.BEST,
-              "training_time": paths.TRAINING_TIME + ".episodes.parquet"}
-    if need not in single:
-        raise ValueError(f"unknown table need {need!r}")
-    return [paths.in_runs(single[need], runs_dir, exp=pid)]
 
 
 def rows(config: dict, table: str) -> dict[str, str]:
@@ -58,7 +40,7 @@ def inputs(config: dict, table: str, needs: tuple[str, ...] | None = None) -> li
     skip = unavailable(config, table)
     needs = TABLES[table].needs if needs is None else needs
     return [f for label, exp in rows(config, table).items() if label not in skip
-            for pid in policies(config, exp) for need in needs for f in artefacts(config, pid, need)]
+            for pid in policies(config, exp) for need in needs for f in need.files(config, pid)]
 
 
 def experiments_of(config: dict, tables=None) -> list[str]:

@@ -14,12 +14,12 @@ from pathlib import Path
 import polars as pl
 
 from ..config.experiments import features_store, frames_store, resolve
+from ..study.findings import BY_ID, SCOPES
+from ..study.registry import FIGURES, SPATIAL_FIGURES_TABLE
+from ..study.report import markdown
+from ..study.tables import write_csv
+from ..study.targets import experiments_of
 from ..util.atomic import atomic_path
-from .findings import BY_ID, SCOPES
-from .registry import FIGURES
-from .report import markdown
-from .tables import write_csv
-from .targets import experiments_of
 
 # benchmark folder -> (what the job builds, stage); the file name, less a shard/epoch/run suffix, names the thing
 EXPERIMENT_STAGES = {"train": "train", "sweep": "sweep", "stability": "stability", "best": "other",
@@ -100,7 +100,7 @@ def per_table(config: dict, totals: pl.DataFrame) -> pl.DataFrame:
     rows = []
     for table in config["tables"]:
         wanted = {("table", table)} | {b for e in experiments_of(config, [table]) for b in builds_of(config, e)}
-        if table == "table5_1":  # figures 5.1-5.3 come with the main job's table
+        if table == SPATIAL_FIGURES_TABLE:  # figures 5.1-5.3 come with the main job's table
             wanted |= {("table", "fig5_1_to_5_3")}
         # a target's findings (findings_main, _ablations, _stackcube) come with the first table they judge
         wanted |= {("table", scope) for scope, ids in SCOPES.items()
