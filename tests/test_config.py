@@ -73,3 +73,24 @@ def test_deep_merge_keeps_siblings():
 def test_schema_file_is_yaml_with_every_top_level_key(default_config):
     schema = yaml.safe_load(C.SCHEMA_PATH.read_text())
     assert set(schema["properties"]) == set(default_config)
+
+
+def test_each_encoder_depends_on_the_weights_it_loads_and_says_which_are_missing(default_config):
+    from ocpipe.config.experiments import encoder_checkpoint, missing_weights
+
+    cfg = {**default_config, "encoders": {**default_config["encoders"],
+                                          "spot": {**default_config["encoders"]["spot"], "checkpoint": None,
+                                                   "dino_checkpoint": None},
+                                          "dino": {**default_config["encoders"]["dino"], "checkpoint": None}}}
+    assert encoder_checkpoint(cfg, "slots_ssl").endswith("model.pt") and encoder_checkpoint(cfg, "state") == []
+    assert missing_weights(cfg, {"encoder": "spot"}).startswith("needs weights: set encoders.spot.checkpoint")
+    assert missing_weights(cfg, {"encoder": "dino_grid4"}) == (
+        "needs weights: set encoders.dino.checkpoint (dino_vitbase16_pretrain.pth)")
+    assert missing_weights(cfg, {"encoder": "slots_ssl"}) is None
+    cfg["encoders"]["spot"]["dino_checkpoint"] = "dino.pth"  # SPOT's slots are trained on the given DINO
+    assert missing_weights(cfg, {"encoder": "spot"}) is None
+    assert encoder_checkpoint(cfg, "spot").endswith("slot_module.pt")
+    cfg["encoders"]["spot"]["checkpoint"] = "spot.pt.tar"  # the official SPOT checkpoint wins
+    assert encoder_checkpoint(cfg, "spot") == "spot.pt.tar"
+    cfg["encoders"]["dino"]["checkpoint"] = "dino.pth"
+    assert encoder_checkpoint(cfg, "dino_dense") == "dino.pth" and missing_weights(cfg, {"encoder": "dino_cls"}) is None

@@ -437,6 +437,22 @@ def test_compute_table_charges_every_job_of_the_tiny_run(tiny_run, tmp_path):
     assert "| table5_1 |" in out and "wall time" in out
 
 
+def test_the_run_log_reader_finds_every_job_of_the_tiny_run_and_its_benchmark(tiny_run):
+    from ocpipe.bookkeeping import compute, progress
+
+    # the fixture's run is the folder's first log: it built everything the later tests read
+    run = progress.parse(sorted((tiny_run / ".snakemake" / "log").glob("*.snakemake.log"))[0])
+    finished = [run.jobs[i] for i in run.finished]
+    assert len(finished) == run.total == run.done == sum(run.planned.values())
+    logged = {job.benchmark for job in finished if job.benchmark}
+    written = {str(p.relative_to(tiny_run)) for p in (tiny_run / "results" / "benchmarks").rglob("*.tsv")}
+    assert logged == written  # every benchmark file belongs to a job the log started, and the reverse
+    for job in finished:
+        if job.benchmark:
+            seconds, cpu = compute.benchmark_times(tiny_run / job.benchmark)
+            assert seconds > 0 and cpu >= 0, job
+
+
 def test_summary_names_probes_and_open_loop_error(tiny_run):
     from ocpipe.study.summary import summary_lines
 

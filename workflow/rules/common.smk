@@ -2,13 +2,14 @@
 # section reruns exactly the jobs that read it), target lists and every input function.
 from ocpipe import paths
 from ocpipe.config import experiments as _exp
+from ocpipe.policy.settings import ENCODERS
 from ocpipe.study import inputs, targets
 
 
 wildcard_constraints:
     task="PickCube-v1|StackCube-v1",
     cams="dual|native",
-    encoder="slots_ssl|spot|dino_cls|dino_grid4|dino_dense|state",
+    encoder="|".join(ENCODERS),
     res=r"\d+",
     shard=r"\d+",
     exp=r"[A-Za-z0-9][A-Za-z0-9_-]*(@[1-9][0-9]*)?",  # a policy id (paths.policy_id): experiment[@replicate]
@@ -102,17 +103,7 @@ def experiment_encoding_targets():
 
 
 def encoder_checkpoint(encoder):
-    """The checkpoint file a features job depends on (a workflow output, or a user-given weight file)."""
-    if encoder == "slots_ssl":
-        return f"{paths.SLOTS_SSL}/model.pt"
-    if encoder == "state":  # the privileged-state control reads poses from the frames store
-        return []
-    spot, dino = config["encoders"]["spot"], config["encoders"]["dino"]
-    if encoder == "spot":
-        if spot["checkpoint"]:
-            return spot["checkpoint"]
-        return f"{paths.SPOT_SLOTS}/slot_module.pt" if spot["dino_checkpoint"] else []
-    return dino["checkpoint"] or []  # a missing weight file fails the job with a message naming the key
+    return _exp.encoder_checkpoint(config, encoder)
 
 
 def policy_of(w):

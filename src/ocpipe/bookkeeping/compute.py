@@ -36,9 +36,13 @@ STAGES = ("train", "sweep", "stability", "other", "demos", "frames", "features",
 
 
 def benchmark_times(path) -> tuple[float, float]:
-    """A Snakemake benchmark file -> (wall seconds, CPU seconds) of its last repeat."""
-    last = Path(path).read_text().strip().splitlines()[-1].split("\t")
-    return float(last[0]), float(last[9])
+    """A Snakemake benchmark file -> (wall seconds, CPU seconds) of its last repeat, read by the header's column
+    names ``s`` and ``cpu_time``; ValueError where the file is not yet whole (a job still running)."""
+    header, *repeats = Path(path).read_text().strip().splitlines()
+    if not repeats:
+        raise ValueError(f"{path}: a benchmark file without a measurement (is its job still running?)")
+    last = dict(zip(header.split("\t"), repeats[-1].split("\t"), strict=True))
+    return float(last["s"]), float(last["cpu_time"])
 
 
 def read_jobs(bench_dir) -> pl.DataFrame:

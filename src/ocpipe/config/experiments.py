@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
+from .. import paths
 from .errors import ConfigError
+
+
+def _with_epoch_share(policy: dict) -> dict:
+    """``epoch_share`` (a fraction of the base budget) turned into the epochs the policy trains for."""
+    share = policy.pop("epoch_share", 1.0)
+    return {**policy, "epochs": max(1, round(policy["epochs"] * share))}
 
 
 def resolve(config: dict, name: str) -> dict:
@@ -11,10 +18,7 @@ def resolve(config: dict, name: str) -> dict:
     experiments = config["experiments"]
     if name not in experiments:
         raise ConfigError(f"experiments.{name}: no such experiment (defined: {', '.join(sorted(experiments))})")
-    policy = {**config["policy"], **(experiments[name] or {}), "name": name}
-    share = policy.pop("epoch_share", 1.0)
-    policy["epochs"] = max(1, round(policy["epochs"] * share))
-    return policy
+    return _with_epoch_share({**config["policy"], **(experiments[name] or {}), "name": name})
 
 
 def resolve_lever(config: dict, name: str) -> dict:
@@ -23,9 +27,7 @@ def resolve_lever(config: dict, name: str) -> dict:
     if name not in sets:
         raise ConfigError(f"levers.sets.{name}: no such lever (defined: {', '.join(sorted(sets))})")
     lever = sets[name]
-    policy = {**resolve(config, lever["experiment"]), **lever.get("policy", {}), "name": name}
-    policy["epochs"] = max(1, round(policy["epochs"] * policy.pop("epoch_share", 1.0)))
-    return policy
+    return _with_epoch_share({**resolve(config, lever["experiment"]), **lever.get("policy", {}), "name": name})
 
 
 def saved_epochs(policy: dict) -> list[int]:
@@ -70,16 +72,35 @@ def problems(policy: dict) -> list[str]:
     return out
 
 
+# the user-given weight files each pretrained encoder loads (keys under config `encoders`), any one of them enough
+WEIGHT_KEYS = {"spot": ("spot.checkpoint", "spot.dino_checkpoint"), "dino_cls": ("dino.checkpoint",),
+               "dino_grid4": ("dino.checkpoint",), "dino_dense": ("dino.checkpoint",)}
+WEIGHT_FILES = {"spot.checkpoint": "SPOT checkpoint.pt.tar", "spot.dino_checkpoint": "dino_vitbase16_pretrain.pth",
+                "dino.checkpoint": "dino_vitbase16_pretrain.pth"}
+
+
+def _weight(config: dict, key: str) -> str | None:
+    section, name = key.split(".")
+    return config["encoders"][section][name] or None
+
+
 def missing_weights(config: dict, policy: dict) -> str | None:
     """Why an experiment cannot run offline (its encoder needs weight files config does not give), or None.
 
     Tables show this in the experiment's row instead of failing the whole target."""
-    enc = policy["encoder"]
-    if enc == "spot":
-        spot = config["encoders"]["spot"]
-        if not (spot["checkpoint"] or spot["dino_checkpoint"]):
-            return ("needs weights: set encoders.spot.checkpoint (SPOT checkpoint.pt.tar) or "
-                    "encoders.spot.dino_checkpoint (dino_vitbase16_pretrain.pth)")
-    elif enc.startswith("dino_") and not config["encoders"]["dino"]["checkpoint"]:
-        return "needs weights: set encoders.dino.checkpoint (dino_vitbase16_pretrain.pth)"
+    keys = WEIGHT_KEYS.get(policy["encoder"], ())
+    if keys and not any(_weight(config, k) for k in keys):
+        return "needs weights: set " + " or ".join(f"encoders.{k} ({WEIGHT_FILES[k]})" for k in keys)
     return None
+
+
+def encoder_checkpoint(config: dict, encoder: str) -> str | list:
+    """The checkpoint file a features job of ``encoder`` depends on: a workflow output, a user-given weight file,
+    or none ([]: the privileged-state control reads poses from the frames store; a missing weight file's job
+    fails with a message naming the key)."""
+    if encoder == "slots_ssl":
+        return f"{paths.SLOTS_SSL}/model.pt"
+    if encoder == "spot" and not _weight(config, "spot.checkpoint") and _weight(config, "spot.dino_checkpoint"):
+        return f"{paths.SPOT_SLOTS}/slot_module.pt"  # slots trained on the given DINO weights
+    keys = WEIGHT_KEYS.get(encoder, ())
+    return _weight(config, keys[0]) if keys and _weight(config, keys[0]) else []

@@ -25,6 +25,10 @@ def setting(key: str, schema: dict, doc: str, default=MISSING):
     return field(default=default, metadata={"key": key, "schema": schema, "doc": doc})
 
 
+# the frozen encoders a features store can be made with ('state': the privileged-state control's object pose)
+ENCODERS = ("slots_ssl", "spot", "dino_cls", "dino_grid4", "dino_dense", "state")
+
+
 def enum(*values) -> dict:
     return {"enum": list(values)}
 
@@ -43,7 +47,7 @@ class Stores:
     task: str = setting("task", {"$ref": "#/$defs/task"}, "task the policy is trained and evaluated on")
     cams: str = setting("cams", enum("dual", "native"), "camera set of its frames and features stores")
     resolution: int = setting("resolution", integer(16), "image resolution of its stores, px")
-    encoder: str = setting("encoder", enum("slots_ssl", "spot", "dino_cls", "dino_grid4", "dino_dense", "state"),
+    encoder: str = setting("encoder", enum(*ENCODERS),
                            "frozen encoder of the features store; 'state' is the privileged-state control (object "
                            "pose); the study's is spot, which needs weights")
     cameras: list = setting("cameras", {"type": "array", "items": integer(0), "minItems": 1, "uniqueItems": True},
