@@ -82,3 +82,19 @@ def test_table_markdown_ends_with_the_conditions_line(default_config, tmp_path):
     last = (tmp_path / "t.md").read_text().rstrip().splitlines()[-1]
     assert last.startswith("Profile cpu-default. Rows differ only in: loss_weighting;")
     assert pl.read_csv(tmp_path / "t.csv").columns == ["Method", "SR mean"]  # the CSV stays a plain table
+
+
+def test_the_study_recipe_is_read_from_the_full_profile_alone(default_config, tmp_path, monkeypatch):
+    """config/thesis.yaml is the one source of the study's recipe: a setting changed there moves the footers."""
+    text = conditions.STUDY_PROFILE.read_text()
+    assert "  width: 256" in text
+    changed = tmp_path / "thesis.yaml"
+    changed.write_text(text.replace("  width: 256", "  width: 64"))  # the default profile's width
+    assert "width 64" in conditions.departures(default_config, "table5_1")
+    monkeypatch.setattr(conditions, "STUDY_PROFILE", changed)
+    conditions.study_recipe.cache_clear()
+    try:
+        assert not any(d.startswith("width ") for d in conditions.departures(default_config, "table5_1"))
+    finally:
+        monkeypatch.undo()
+        conditions.study_recipe.cache_clear()

@@ -8,21 +8,33 @@ departs from the study's, the same for every row (or said per row where it is no
 
 from __future__ import annotations
 
+from functools import cache
+
+import yaml
+
 from ..config.experiments import resolve
+from ..config.validate import REPO_ROOT
 from .registry import TABLES
 
-# The study's recipe, for the settings this pipeline can change (the study's sizes are config/thesis.yaml's)
-STUDY_POLICY = {
-    "token_norm": "none", "aux_object_weight": 0.0, "joint_targets": "absolute", "object_readout": False,
-    "readout_scenes": False, "visual_dropout": 0.0, "goal_norm": "none", "goal_relative": "none",
-    "visual_head": "tokens", "action_head": "linear", "gripper": "regression", "width": 256, "layers": 8,
-    "heads": 8, "lr": 0.0001,
-}
-STUDY_EVALUATION = {"execute_actions": 5, "temporal_ensemble": 0.0, "readout_filter": "none",
-                    "episode_cap": {"PickCube-v1": 300, "StackCube-v1": 300}}
-STUDY_DEMOS = 1000
+# The study's recipe is config/thesis.yaml's (the full profile): its policy and evaluation settings, less the sizes
+# the default profile shrinks by design, and its demo count
+STUDY_PROFILE = REPO_ROOT / "config" / "thesis.yaml"
+SIZES = {"policy": ("epochs", "save_every", "time_weight_warmup_epochs", "val_episodes"),
+         "evaluation": ("seed_pool_size", "sweep_episodes", "stability_runs", "stability_episodes",
+                        "failure_episodes", "training_time_episodes")}
 # settings that only mean something with the object read-out on: named only where it is
 READOUT_DETAILS = ("readout_standardize", "readout_yaw_weight")
+
+
+@cache
+def study_recipe() -> tuple[dict, dict, int]:
+    """(policy settings, evaluation settings, demos) of the study, in the order the footer names them."""
+    profile = yaml.safe_load(STUDY_PROFILE.read_text())
+    policy, evaluation = ({k: v for k, v in profile[s].items() if k not in SIZES[s] and k not in READOUT_DETAILS}
+                          for s in ("policy", "evaluation"))
+    return policy, evaluation, profile["demos"]["num_demos"]
+
+
 IGNORED = {"name", "device"}  # where a row runs is not what it is
 
 
@@ -51,7 +63,8 @@ def departures(config: dict, table: str) -> list[str]:
     """Where the rows' recipe departs from the study's: 'key value' when every row agrees, else per row."""
     settings = row_settings(config, table)
     out = []
-    for key, study in STUDY_POLICY.items():
+    study_policy, study_evaluation, study_demos = study_recipe()
+    for key, study in study_policy.items():
         values = {label: s[key] for label, s in settings.items() if key in s}
         off = {label: v for label, v in values.items() if v != study}
         if not off:
@@ -66,9 +79,9 @@ def departures(config: dict, table: str) -> list[str]:
             agreed = [k for k in READOUT_DETAILS if len({repr(s.get(k)) for s in settings.values()}) == 1]
             out += [f"{k} {next(iter(settings.values()))[k]}" for k in agreed]
     ev = config["evaluation"]
-    out += [f"evaluation.{k} {ev[k]}" for k, v in STUDY_EVALUATION.items() if ev.get(k, v) != v]
-    demos = config.get("demos", {}).get("num_demos", STUDY_DEMOS)
-    return out + ([f"demos.num_demos {demos}"] if demos != STUDY_DEMOS else [])
+    out += [f"evaluation.{k} {ev[k]}" for k, v in study_evaluation.items() if ev.get(k, v) != v]
+    demos = config.get("demos", {}).get("num_demos", study_demos)
+    return out + ([f"demos.num_demos {demos}"] if demos != study_demos else [])
 
 
 def footer(config: dict, table: str) -> str:
