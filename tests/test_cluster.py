@@ -21,6 +21,8 @@ import yaml
 from conftest import REPO
 from test_workflow import TABLES  # the same targets as the local tiny run, whose tables are committed
 
+from ocpipe.bookkeeping import progress  # the run-log reader, here on the cluster run's output
+
 pytestmark = [pytest.mark.slow, pytest.mark.cluster, pytest.mark.timeout(5400)]
 
 SNAKEMAKE = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile")]
@@ -48,7 +50,6 @@ STAGE = {
 SACCT_FIELDS = ["JobIDRaw", "JobName", "State", "AllocCPUS", "ReqMem", "TimelimitRaw", "Partition", "Account",
                 "SubmitLine"]  # SubmitLine last: it is the only field that could hold a '|'
 SUBMITTED = re.compile(r"Job (\d+) has been submitted with SLURM jobid (\d+) \(log: (.+?)\)\.")
-FINISHED = re.compile(r"Finished jobid: (\d+) \(Rule: ([\w-]+)\)")
 
 
 def compute():
@@ -160,7 +161,7 @@ def record(work, out):
     """A finished run: its Snakemake jobs and their SLURM ids and logs, and sacct's rows for those ids."""
     jobs = {int(n): (sid, log) for n, sid, log in SUBMITTED.findall(out)}
     return {"work": work, "out": out, "uuid": run_id(out), "jobs": jobs,
-            "finished": {int(n): rule for n, rule in FINISHED.findall(out)},
+            "finished": {int(m["id"]): m["rule"] for m in progress.FINISHED.finditer(out)},
             "sacct": sacct([sid for sid, _ in jobs.values()])}
 
 
