@@ -94,3 +94,12 @@ def test_each_encoder_depends_on_the_weights_it_loads_and_says_which_are_missing
     assert encoder_checkpoint(cfg, "spot") == "spot.pt.tar"
     cfg["encoders"]["dino"]["checkpoint"] = "dino.pth"
     assert encoder_checkpoint(cfg, "dino_dense") == "dino.pth" and missing_weights(cfg, {"encoder": "dino_cls"}) is None
+
+
+def test_check_config_refuses_a_table_the_study_does_not_define(tmp_path, capsys):
+    from ocpipe import cli
+
+    extra = tmp_path / "extra.yaml"
+    extra.write_text("tables:\n  table_dropout: {none: pure_visual}\n")
+    assert cli.main(["check-config", str(REPO / "config" / "config.yaml"), str(extra)]) == 1
+    assert "tables.table_dropout: not a table of the study" in capsys.readouterr().err

@@ -117,3 +117,23 @@ def test_each_target_judges_the_findings_its_tables_cover(one_policy_config, tmp
             for exp in targets.experiments_of(one_policy_config)}
     got = findings_of(one_policy_config, tmp_path / "all", rows, scope="findings_ablations")
     assert sorted(got) == list(range(4, 11))
+
+
+def test_a_table_the_findings_cannot_read_is_refused_naming_the_finding(one_policy_config):
+    cfg = {**one_policy_config, "tables": {**one_policy_config["tables"]}}
+    cfg["tables"]["table5_5"] = {k: v for k, v in cfg["tables"]["table5_5"].items() if v != "head_slot_transformer"}
+    cfg["tables"]["table5_9"] = {**cfg["tables"]["table5_9"], "Uniform again": "goal2d"}
+    problems = findings.config_problems(cfg)
+    assert any(p.startswith("tables.table5_5: no row runs experiment 'head_slot_transformer', which finding 6")
+               for p in problems), problems
+    assert any(p.startswith("tables.table5_9: experiment 'goal2d' runs in two rows; finding 10") for p in problems)
+
+
+def test_table_inputs_are_one_object_each_wherever_they_travel():
+    import pickle
+
+    from ocpipe.study import inputs
+
+    for need in inputs.INPUTS.values():
+        assert pickle.loads(pickle.dumps(need)) is need  # Snakemake pickles what reaches a script
+    assert {inputs.STABILITY: 1}[inputs.INPUTS["stability"]] == 1

@@ -219,3 +219,18 @@ def test_summary_prints_table5_1_then_the_findings_built_then_the_other_tables(t
     assert order() == ["table5_1", "findings_main", "findings_stackcube", "table5_2", "table5_10"]
     (tmp_path / "tables" / "findings.md").write_text("all twelve")
     assert order() == ["table5_1", "findings", "table5_2", "table5_10"]  # all twelve replace the targets' own
+
+
+def test_a_checkpoint_without_its_parameter_count_fails_table5_5_only(one_policy_config, tmp_path):
+    runs = tmp_path / "runs"
+    for exp in ("head_flatten", "head_deepsets", "head_weighted_pool", "head_slot_transformer", "pure_visual",
+                "window20", "window40"):
+        _fake_run(runs, exp)
+        for ckpt in (runs / exp / "checkpoints").glob("*.pt"):
+            state = torch.load(ckpt, weights_only=False)
+            del state["parameters"]
+            torch.save(state, ckpt)
+    t = report.write_table(one_policy_config, "table5_7", tmp_path / "t7.csv", tmp_path / "t7.md", runs_dir=runs)
+    assert t["Sequence length"].to_list() == [85, 85, 85]  # Table 5.7 reads the sequence length alone
+    with pytest.raises(ValueError, match="before training recorded its parameter count"):
+        report.write_table(one_policy_config, "table5_5", tmp_path / "t5.csv", tmp_path / "t5.md", runs_dir=runs)

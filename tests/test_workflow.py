@@ -63,7 +63,8 @@ def test_bad_config_stops_the_run_naming_the_key(tmp_path):
 
 def test_a_table_added_to_the_registry_is_planned_by_its_group_target(tmp_path):
     """Adding a table is one registry entry plus its rows in config: a Snakefile that adds the entry, then includes
-    the workflow's, plans the table under its group target (here `ablations`) with its rows' experiments."""
+    the workflow's, plans the table under its group target (here `ablations`) with its rows' experiments. (Planning
+    only: the table job's own process reads src/ocpipe/study/registry.py, where a real table's entry goes.)"""
     (tmp_path / "Snakefile").write_text(f"""from ocpipe.study import inputs, registry, tables
 
 registry.TABLES["table_dropout"] = registry.Table(

@@ -108,7 +108,7 @@ def per_table(config: dict, totals: pl.DataFrame) -> pl.DataFrame:
             wanted |= {("table", "fig5_1_to_5_3")}
         # a target's findings (findings_main, _ablations, _stackcube) come with the first table they judge
         wanted |= {("table", scope) for scope, ids in SCOPES.items()
-                   if scope != "findings" and BY_ID[ids[0]].table == table}
+                   if scope != "findings" and ids and BY_ID[ids[0]].table == table}
         wanted |= {("table", f) for f, fig in FIGURES.items() if fig.table == table}
         new = wanted - seen
         seen |= new

@@ -36,6 +36,12 @@ class Finding:
     rows: tuple[str, ...]  # the experiments of the table's rows it compares (every row where empty)
     needs: tuple[Input, ...]
     judge: Callable[[dict[str, Row]], list[pooled.Check]]  # rows by experiment -> the claims' checks
+    requires: tuple[str, ...] = ()  # where ``rows`` is every row: the experiment the others are compared with
+
+    @property
+    def compared(self) -> tuple[str, ...]:
+        """The experiments the table must hold for this finding."""
+        return self.rows or self.requires
 
 
 def _policies(frame: pl.DataFrame) -> list[pl.DataFrame]:
@@ -168,7 +174,8 @@ FINDINGS = (
             "SPOT 55.0; CLS 32.6; 4x4 31.7; dense 1.0 % (peak)", (DINO_CLS, DINO_GRID, DINO_DENSE, OFFLINE_SLOTS),
             (STABILITY,), _f5),
     Finding(6, "table5_5", "Slot Transformer at least as good as the other heads (qualitative)",
-            "13.3 against 10.0 / 6.7 / 10.0 % (30 episodes)", (), (TRAINING_TIME,), _f6),
+            "13.3 against 10.0 / 6.7 / 10.0 % (30 episodes)", (), (TRAINING_TIME,), _f6,
+            requires=(SLOT_TRANSFORMER,)),
     Finding(7, "table5_6", "cross-attention fits the training seeds better than concatenation, both equal held out "
             "(so its gap is larger)", "training seeds 60.0 vs 38.6 %; held out 31.0 vs 31.0 %",
             (CONCAT, CROSS_ATTENTION), (STABILITY, TRAIN_SEEDS), _f7),
@@ -177,7 +184,8 @@ FINDINGS = (
     Finding(9, "table5_8", "9-DoF with global z-score fails (gripper stuck closed); grouped below 7-DoF",
             "0.0 / 6.7 / 31.0 %", (DOF7, GLOBAL9, GROUPED9), (STABILITY,), _f9),
     Finding(10, "table5_9", "every loss weighting at or below uniform",
-            "uniform 55.0; time 38.9; U-shaped 34.8; dim-decoupled 49.8 %", (), (STABILITY,), _f10),
+            "uniform 55.0; time 38.9; U-shaped 34.8; dim-decoupled 49.8 %", (), (STABILITY,), _f10,
+            requires=(UNIFORM,)),
     Finding(11, "table5_10", "StackCube: aligned above native", "native 1.5 %; aligned 5.3 %",
             (STACK_NATIVE, STACK_ALIGNED), (STABILITY,), _f11),
     Finding(12, "table5_11", "StackCube failures are mostly No Grasp", "No Grasp 72.0 %, Near Miss 10.0 %",
@@ -193,7 +201,12 @@ SCOPES = {"findings": tuple(BY_ID),
 
 def by_experiment(rows: list[Row]) -> dict[str, Row]:
     """A table's rows keyed by the experiment each runs, as the findings compare them."""
-    return {r.exp: r for r in rows}
+    out = {r.exp: r for r in rows}
+    if len(out) < len(rows):
+        twice = sorted({r.exp for r in rows if sum(s.exp == r.exp for s in rows) > 1})
+        raise ConfigError(f"a table runs experiment {', '.join(map(repr, twice))} in two rows: the findings cannot "
+                          "tell them apart (config `tables`)")
+    return out
 
 
 def config_problems(config: dict) -> list[str]:
@@ -203,10 +216,12 @@ def config_problems(config: dict) -> list[str]:
            for name in config["tables"] if name not in TABLES]
     for f in FINDINGS:
         if f.table not in config["tables"]:
-            continue  # the finding reads 'not run: no such table'
-        runs = set(config["tables"][f.table].values())
+            continue  # a target that reports the finding names the missing table (targets.rows)
+        runs = list(config["tables"][f.table].values())
         out += [f"tables.{f.table}: no row runs experiment {exp!r}, which finding {f.id} ({f.claim}) compares"
-                for exp in f.rows if exp not in runs]
+                for exp in f.compared if exp not in runs]
+        out += [f"tables.{f.table}: experiment {exp!r} runs in two rows; finding {f.id} could not tell them apart"
+                for exp in sorted(set(runs)) if runs.count(exp) > 1 and exp in f.compared]
     return out
 
 
@@ -220,7 +235,7 @@ def check_config(config: dict) -> None:
 def not_run(finding: Finding, rows: dict[str, Row]) -> str | None:
     """Why a finding cannot be judged (an experiment missing from the table, or a row that needs weights), or None;
     ``rows`` by experiment."""
-    missing = [exp for exp in finding.rows if exp not in rows]
+    missing = [exp for exp in finding.compared if exp not in rows]
     if missing:
         return f"not run: {finding.table} has no row of experiment {', '.join(map(repr, missing))}"
     blocked = {row.label: row.status for exp, row in rows.items()

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import polars as pl
@@ -19,9 +19,9 @@ EPISODES = ".episodes.parquet"
 
 @dataclass(frozen=True)
 class Input:
-    name: str
-    locate: Callable[[dict, str, str], list[str]]  # (config, policy id, runs dir) -> the files of one policy
-    load: Callable[[dict[int, list[str]]], object]  # the row's policies (replicate index -> files) -> its data
+    name: str  # what an input is compared, hashed and pickled by (INPUTS)
+    locate: Callable[[dict, str, str], list[str]] = field(compare=False)  # (config, policy id, runs dir) -> files
+    load: Callable[[dict[int, list[str]]], object] = field(compare=False)  # the row's {replicate: files} -> its data
 
     def files(self, config: dict, pid: str, runs_dir: str = "results/runs") -> list[str]:
         """The files holding this input of policy ``pid`` (a policy id, or an experiment's name: its policy 0)."""
@@ -29,6 +29,13 @@ class Input:
 
     def __repr__(self) -> str:
         return self.name
+
+    def __reduce__(self):
+        return _declared, (self.name,)
+
+
+def _declared(name: str) -> Input:
+    return INPUTS[name]
 
 
 def _frame(per_policy: dict[int, list[str]]) -> pl.DataFrame:
@@ -49,12 +56,10 @@ def _model_facts(per_policy: dict[int, list[str]]) -> dict:
     checkpoints_dir = Path(next(iter(per_policy.values()))[0])
     last = sorted(checkpoints_dir.glob("epoch_*.pt"))[-1]
     ckpt = torch.load(last, map_location="cpu", weights_only=False)
-    if "parameters" not in ckpt:
-        raise ValueError(f"{last}: a checkpoint from before training recorded its parameter count; delete "
-                         f"{checkpoints_dir.parent} and rerun the workflow to retrain it")
-    # the trainable parameters, counted by the training that owned the model: the state dict also holds the
-    # Normalizer's statistics and a frozen read-out's weights
-    return {"parameters": int(ckpt["parameters"]), "sequence_length": int(ckpt["model"]["pos"].shape[0])}
+    # the trainable parameters, counted by the training that owned the model (the state dict also holds the
+    # Normalizer's statistics and a frozen read-out's weights); None in a checkpoint from before it was recorded
+    return {"parameters": ckpt.get("parameters"), "sequence_length": int(ckpt["model"]["pos"].shape[0]),
+            "checkpoint": str(last)}
 
 
 def _one(pattern: str) -> Callable[[dict, str, str], list[str]]:

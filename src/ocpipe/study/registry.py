@@ -96,6 +96,10 @@ FIGURES = {
 }
 
 
+_unknown = {name: t.scope for name, t in TABLES.items() if t.scope not in SCOPES}
+if _unknown:  # a misspelt scope would leave the table out of every group target
+    raise ValueError(f"tables with a scope not in {SCOPES}: {_unknown}")
+
 
 def tables_in(scope: str) -> list[str]:
     """The tables a group target builds, in registry order."""

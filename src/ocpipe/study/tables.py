@@ -144,6 +144,14 @@ def representation_columns(row: Row) -> dict:
             "Batch": p["batch_size"], "Minutes/epoch": _minutes_per_epoch(row), **_stability(row)}
 
 
+def _parameters(row: Row) -> int:
+    facts = row.data[CHECKPOINTS]
+    if facts["parameters"] is None:
+        raise ValueError(f"{facts['checkpoint']}: a checkpoint from before training recorded its parameter count; "
+                         f"delete its run folder under results/runs/ and rerun the workflow to retrain it")
+    return int(facts["parameters"])
+
+
 def _one_run(row: Row, need: Input) -> dict:
     """SR of one run per policy (trivial successes excluded) with its 95 % interval (one policy: Wilson's over its
     episodes; K policies: t over the policies' SRs), and the mean episode length."""
@@ -157,7 +165,7 @@ def _one_run(row: Row, need: Input) -> dict:
 def head_columns(row: Row) -> dict:
     """Table 5.5: one training-time run per head (the study's were 30 episodes each, read qualitatively)."""
     return {"Head": row.policy["visual_head"],
-            "Parameters": None if row.status else row.data[CHECKPOINTS]["parameters"],
+            "Parameters": None if row.status else _parameters(row),
             **_one_run(row, TRAINING_TIME)}
 
 

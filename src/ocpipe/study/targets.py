@@ -10,6 +10,7 @@ from __future__ import annotations
 from .. import paths
 from ..config.experiments import missing_weights, resolve
 from .findings import BY_ID, SCOPES
+from .inputs import Input
 from .registry import TABLES
 
 
@@ -35,7 +36,7 @@ def unavailable(config: dict, table: str) -> dict[str, str]:
     return out
 
 
-def inputs(config: dict, table: str, needs: tuple[str, ...] | None = None) -> list[str]:
+def inputs(config: dict, table: str, needs: tuple[Input, ...] | None = None) -> list[str]:
     """Every file a table (or a figure drawing its rows) reads, for the rows that can run."""
     skip = unavailable(config, table)
     needs = TABLES[table].needs if needs is None else needs
