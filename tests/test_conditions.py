@@ -39,9 +39,8 @@ def test_the_control_may_differ_only_in_what_reading_the_true_pose_needs(default
 
 def test_rows_the_study_shared_between_tables_are_one_experiment(profile):
     tables = profile["tables"]
-    approx = {tables["table5_1"]["2D-Spatial-Proj"], tables["table5_3"]["approx-128"],
-              tables["table5_4"]["slots_ssl 14 slots (offline)"], tables["table5_9"]["Uniform"]}
-    pure = {tables["table5_1"]["Pure Visual"], tables["table5_6"]["Concatenation"], tables["table5_8"]["7-DoF"]}
+    approx = {tables["table5_1"]["2D-Spatial-Proj"], tables["table5_3"]["approx-128"], tables["table5_9"]["Uniform"]}
+    pure = {tables["table5_1"]["Pure Visual"], tables["table5_8"]["7-DoF"]}
     assert len(approx) == 1 and len(pure) == 1
     goal2d, pure_visual = resolve(profile, approx.pop()), resolve(profile, pure.pop())
     assert goal2d["goal"] == "2d" and goal2d["goal_calibration"] == "approx" and goal2d["resolution"] == 128
@@ -51,6 +50,38 @@ def test_rows_the_study_shared_between_tables_are_one_experiment(profile):
         assert {resolve(profile, e)["goal"] for e in tables[table].values()} == {"none"}, table
     for table in ("table5_4", "table5_9"):
         assert {resolve(profile, e)["goal_calibration"] for e in tables[table].values()} == {"approx"}, table
+
+
+def test_tables_whose_variable_the_read_out_goes_around_run_every_row_without_it(profile):
+    for table in ("table5_4", "table5_5", "table5_6"):
+        for label, exp in profile["tables"][table].items():
+            s = resolve(profile, exp)
+            assert (s["object_readout"], s["readout_scenes"], s["visual_dropout"]) == (False, False, 0.0), label
+    # their slot and concatenation rows are the main table's recipe less the read-out, nothing else
+    readout = {"name", "object_readout", "readout_scenes", "visual_dropout"}
+    for table, main_exp in (("table5_4", "goal2d"), ("table5_6", "pure_visual")):
+        main = resolve(profile, main_exp)
+        ours = resolve(profile, profile["tables"][table][next(iter(profile["tables"][table]))
+                                                         if table == "table5_6" else "slots_ssl 14 slots (offline)"])
+        assert {k for k in main if main[k] != ours[k]} <= readout, table
+
+
+def test_no_table_row_may_take_the_goal_minus_the_hand(default_config):
+    assert [p for table in registry.TABLES for p in conditions.barred(default_config, table)] == []
+    default_config["policy"]["goal_relative"] = "tcp"
+    problems = conditions.barred(default_config, "table5_1")
+    assert len(problems) == 4 and all("goal_relative 'tcp', which must be 'none'" in p for p in problems)
+    assert "tables.table5_1: row '2D-Spatial-Proj' (experiment 'goal2d')" in problems[1]
+
+
+def test_a_read_out_on_a_row_it_would_go_around_is_refused_by_config_check(default_config):
+    from ocpipe.config.errors import ConfigError
+    from ocpipe.study import findings
+
+    default_config["experiments"]["fusion_cross_attention"]["object_readout"] = True
+    with pytest.raises(ConfigError, match=r"tables.table5_6: row 'Cross-attention' \(experiment "
+                                          r"'fusion_cross_attention'\) has object_readout True, which must be False"):
+        findings.check_config(default_config)
 
 
 def test_window_rows_get_one_training_budget_in_the_study_proportions(profile):
@@ -72,8 +103,10 @@ def test_the_full_profile_runs_the_study_recipe_and_the_default_names_its_depart
 
 
 def test_a_departure_that_is_not_the_same_for_every_row_names_its_rows(default_config):
-    dep = conditions.departures(default_config, "table5_4")
-    assert "object_readout True (not DINO 14x14 dense)" in dep  # dense DINO runs without the read-out
+    dep = conditions.departures(default_config, "table5_1")
+    assert "visual_dropout 0.5 (not Privileged state (control))" in dep  # the control has no visual token to blank
+    # Table 5.4's rows all run without the read-out and dropout, as the study did: nothing to name per row
+    assert not [d for d in conditions.departures(default_config, "table5_4") if "(" in d and "not" in d]
 
 
 def test_table_markdown_ends_with_the_conditions_line(default_config, tmp_path):

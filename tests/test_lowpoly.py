@@ -2,6 +2,7 @@
 same physics (renders on CPU through lavapipe)."""
 
 import copy
+import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -67,6 +68,19 @@ def test_collision_meshes_are_the_originals_and_the_srdf_is_copied(built):
         assert (urdf.parent / f).is_file(), f
     # exact: a copied file
     assert (urdf.parent / "panda_v2.srdf").read_bytes() == _panda_urdf().with_suffix(".srdf").read_bytes()
+
+
+def test_a_copy_built_from_another_install_is_not_reused(tmp_path):
+    """The copy names the original collision meshes by absolute path: one built from a robot elsewhere (another
+    clone's venv) gets its own key, and a cached copy whose originals are gone is refused, not loaded."""
+    elsewhere = tmp_path / "other_install"
+    shutil.copytree(_panda_urdf().parent, elsewhere)
+    root = tmp_path / "cache"
+    moved = lowpoly.decimated_urdf(elsewhere / _panda_urdf().name, 0.1, root)
+    assert lowpoly.decimated_urdf(_panda_urdf(), 0.1, root).parent != moved.parent
+    shutil.rmtree(elsewhere / "franka_description" / "meshes" / "collision")
+    with pytest.raises(FileNotFoundError, match=r"the cached robot names .*collision.* which no longer exists"):
+        lowpoly.decimated_urdf(elsewhere / _panda_urdf().name, 0.1, root)
 
 
 def test_bad_keep_is_refused(tmp_path):

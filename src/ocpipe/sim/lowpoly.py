@@ -112,6 +112,9 @@ def decimated_urdf(urdf_path: str | os.PathLike, keep: float, cache_root: str | 
 
     h = hashlib.sha256(f"{_VERSION} {keep!r} {_MIN_FACES} {trimesh.__version__} "
                        f"{getattr(fast_simplification, '__version__', '?')}".encode())
+    # the copy names the collision meshes by absolute path: a copy built from another install (another clone's
+    # venv, since removed) would load a robot without them, so where the originals lie is part of the key
+    h.update(str(src_dir).encode())
     h.update(urdf_path.read_bytes())
     for s in sources:
         h.update(s.encode())
@@ -119,6 +122,10 @@ def decimated_urdf(urdf_path: str | os.PathLike, keep: float, cache_root: str | 
     out_dir = Path(cache_root or default_cache_root()) / f"{urdf_path.stem}-{keep:g}-{h.hexdigest()[:16]}"
     out_urdf = out_dir / urdf_path.name
     if out_urdf.is_file():
+        missing = [f for f in _referenced_files(out_urdf) if not Path(f).is_file()]
+        if missing:
+            raise FileNotFoundError(f"{out_urdf}: the cached robot names {missing[0]}, which no longer exists "
+                                    f"({len(missing)} such files); delete {out_dir} to rebuild it")
         return out_urdf
 
     out_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -147,6 +154,12 @@ def decimated_urdf(urdf_path: str | os.PathLike, keep: float, cache_root: str | 
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return out_urdf
+
+
+def _referenced_files(urdf: Path) -> list[str]:
+    """Every file a URDF names, as absolute paths (relative ones are beside it)."""
+    names = (t.get("filename") for t in ET.parse(urdf).getroot().iter() if t.get("filename") is not None)
+    return [n if os.path.isabs(n) else str(urdf.parent / n) for n in names]
 
 
 @functools.cache

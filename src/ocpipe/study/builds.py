@@ -51,8 +51,10 @@ def compare_findings(config: dict, scope: str, runs_dir="results/runs") -> pl.Da
     for fid in findings.SCOPES[scope]:
         finding = findings.BY_ID[fid]
         (ca, va), (cb, vb) = _checks(a, finding, runs_dir), _checks(b, finding, runs_dir)
-        both_ways = any({x.outcome, y.outcome} == {"holds", "violated"} for x, y in zip(ca, cb, strict=False))
-        p = [max((c.p for c in cs if c.p is not None), default=None) for cs in (ca, cb)]
+        # a finding judged in both builds has the same checks in the same order; one not run has none
+        pairs = zip(ca, cb, strict=True) if ca and cb else ()
+        both_ways = any({x.outcome, y.outcome} == {"holds", "violated"} for x, y in pairs)
+        p = [findings.finding_p(cs) for cs in (ca, cb)]
         out.append({"Finding": fid, "Claim": finding.claim, f"Verdict, {_label(a)}": va, f"p, {_label(a)}": p[0],
                     f"Verdict, {_label(b)}": vb, f"p, {_label(b)}": p[1],
                     "Resolved both ways": "yes" if both_ways else "no"})

@@ -14,7 +14,7 @@ import yaml
 
 from ..config.experiments import resolve
 from ..config.validate import REPO_ROOT
-from .registry import TABLES
+from .registry import EVERY_TABLE_HOLDS, TABLES
 
 # The study's recipe is config/thesis.yaml's (the full profile): its policy and evaluation settings, less the sizes
 # the default profile shrinks by design, and its demo count
@@ -56,6 +56,19 @@ def unlike_rows(config: dict, table: str) -> list[str]:
             keys = sorted(k for k in settings[a].keys() | settings[b].keys()
                           if k not in free and settings[a].get(k) != settings[b].get(k))
             out += [f"{table}: {a!r} vs {b!r}: {k} {settings[a].get(k)!r} vs {settings[b].get(k)!r}" for k in keys]
+    return out
+
+
+def barred(config: dict, table: str) -> list[str]:
+    """Every row of ``table`` that departs where the study's variable would be reached around (the registry's
+    ``holds`` and EVERY_TABLE_HOLDS), as 'table row (experiment): key value, must be value'."""
+    holds = {**EVERY_TABLE_HOLDS, **TABLES[table].holds}
+    out = []
+    for (label, settings), exp in zip(row_settings(config, table).items(), config["tables"][table].values(),
+                                      strict=True):
+        out += [f"tables.{table}: row {label!r} (experiment {exp!r}) has {key} {settings.get(key)!r}, which must be "
+                f"{want!r} in this table (docs/study.md, how each table's variable reaches its rows)"
+                for key, want in holds.items() if settings.get(key) != want]
     return out
 
 

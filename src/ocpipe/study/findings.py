@@ -16,7 +16,7 @@ import polars as pl
 from ..config.errors import ConfigError
 from ..evaluation import taxonomy
 from ..stats import by_policy, pooled
-from . import claims, registry, tables
+from . import claims, conditions, registry, tables
 from .inputs import BEST, FAILURES, STABILITY, SWEEP, TRAIN_SEEDS, TRAINING_TIME, Input
 from .registry import TABLES
 from .tables import Row
@@ -101,7 +101,8 @@ def _f4(r):
             claims.rate_less(*_sr(r, EXACT_128), *_sr(r, EXACT_224))]
 
 
-DINO_CLS, DINO_GRID, DINO_DENSE, SPOT, OFFLINE_SLOTS = "dino_cls", "dino_grid4", "dino_dense", "spot", "goal2d"
+DINO_CLS, DINO_GRID, DINO_DENSE, SPOT = "dino_cls", "dino_grid4", "dino_dense", "spot"
+OFFLINE_SLOTS = "encoder_slots_ssl"
 
 
 def _f5(r):
@@ -121,7 +122,7 @@ def _f6(r):
             for other in r if other != SLOT_TRANSFORMER]
 
 
-CONCAT, CROSS_ATTENTION = "pure_visual", "fusion_cross_attention"
+CONCAT, CROSS_ATTENTION = "fusion_concat", "fusion_cross_attention"
 
 
 def _f7(r):
@@ -210,8 +211,9 @@ def by_experiment(rows: list[Row]) -> dict[str, Row]:
 
 
 def config_problems(config: dict) -> list[str]:
-    """What in config `tables` the study cannot report: a table the registry does not define, or a table whose
-    rows leave out an experiment one of the findings compares (naming the finding)."""
+    """What in config `tables` the study cannot report: a table the registry does not define, a table whose rows
+    leave out an experiment one of the findings compares (naming the finding), or a row that departs where the
+    table's variable would be reached around (conditions.barred)."""
     out = [f"tables.{name}: not a table of the study (ocpipe.study.registry defines {', '.join(TABLES)})"
            for name in config["tables"] if name not in TABLES]
     for f in FINDINGS:
@@ -222,7 +224,7 @@ def config_problems(config: dict) -> list[str]:
                 for exp in f.compared if exp not in runs]
         out += [f"tables.{f.table}: experiment {exp!r} runs in two rows; finding {f.id} could not tell them apart"
                 for exp in sorted(set(runs)) if runs.count(exp) > 1 and exp in f.compared]
-    return out
+    return out + [p for name in config["tables"] if name in TABLES for p in conditions.barred(config, name)]
 
 
 def check_config(config: dict) -> None:
@@ -254,12 +256,17 @@ def judge(finding: Finding, rows: dict[str, Row]) -> dict:
         return {**base, "This build": None, "Test": None, "p": None, "Resolvable at 80 % power": None,
                 "Verdict": reason}
     checks = finding.judge(rows)
-    p = [c.p for c in checks if c.directional and c.p is not None]
     resolvable = [c.resolvable for c in checks if c.resolvable]
     return {**base, "This build": "; ".join(c.text for c in checks),
             "Test": "; ".join(f"{c.test} p={c.p:.3g}" if c.p is not None else c.test for c in checks),
-            "p": max(p) if p else None, "Resolvable at 80 % power": "; ".join(resolvable) or None,
+            "p": finding_p(checks), "Resolvable at 80 % power": "; ".join(resolvable) or None,
             "Verdict": verdict_of(checks, rows)}
+
+
+def finding_p(checks: list[pooled.Check]) -> float | None:
+    """A finding's p: the largest of its directional checks' (every one of its claims must hold)."""
+    p = [c.p for c in checks if c.directional and c.p is not None]
+    return max(p) if p else None
 
 
 def verdict_of(checks: list[pooled.Check], rows: dict[str, Row]) -> str:

@@ -26,13 +26,24 @@ class Table:
     fixed: str = ""  # what the study held fixed across the rows, in words (written under the table)
     # experiment -> further settings that one row may differ in, each with the study's reason
     allowed: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    # settings every row must hold at these values, beside EVERY_TABLE_HOLDS: a departure that would reach the rows
+    # around the variable under study (docs/study.md, how each table's variable reaches its rows)
+    holds: dict[str, object] = field(default_factory=dict)
+
+
+# no table's row may hand the policy the goal minus the hand: it changes the goal input Table 5.1 studies and
+# cancels the calibration error Table 5.3 measures (a lever only, on the validation pool)
+EVERY_TABLE_HOLDS = {"goal_relative": "none"}
+# the object read-out reads the pose off every camera's tokens: a path around the encoder (5.4), the slot head
+# (5.5) and the fusion (5.6); visual dropout served the read-out, so it goes with it
+WITHOUT_READOUT = {"object_readout": False, "readout_scenes": False, "visual_dropout": 0.0}
 
 
 # the privileged-state control reads the object's true pose instead of rendered tokens: no camera, no read-out,
 # and no visual token to blank (its one token is the pose)
 CONTROL = {"state_control": ("goal", "encoder", "cameras", "object_readout", "readout_scenes", "visual_dropout")}
 # dense DINO fits in memory only this way (the study's own exception, a column of its Table 5.4)
-DENSE = {"dino_dense": ("window", "horizon", "batch_size", "object_readout", "readout_scenes")}
+DENSE = {"dino_dense": ("window", "horizon", "batch_size")}
 SPATIAL = "encoder, cameras (base + side) and resolution 128 px, T, H, demos and training"
 
 
@@ -57,13 +68,15 @@ TABLES = {
                       fixed="encoder, both cameras, 2D goal, T, H"),
     "table5_4": Table("Table 5.4: visual representations", (STABILITY, TRAIN_LOG), "ablations",
                       tables.representation_columns, varies=("encoder",),
-                      fixed="both cameras at 128 px, approximate calibration, 2D goal, the policy", allowed=DENSE),
+                      fixed="both cameras at 128 px, approximate calibration, 2D goal, the policy", allowed=DENSE,
+                      holds=WITHOUT_READOUT),
     "table5_5": Table("Table 5.5: single-camera slot heads (base camera, no goal; one training-time run each)",
                       (TRAINING_TIME, CHECKPOINTS), "ablations", tables.head_columns, varies=("visual_head",),
-                      fixed="slot encoder, base camera only (7 slots), no goal, 7-DoF proprioception"),
+                      fixed="slot encoder, base camera only (7 slots), no goal, 7-DoF proprioception",
+                      holds=WITHOUT_READOUT),
     "table5_6": Table("Table 5.6: multi-view fusion, generalization gap (training-seed SR vs held-out SR)",
                       (STABILITY, TRAIN_SEEDS), "ablations", tables.generalization_columns, varies=("fusion",),
-                      fixed="slot encoder, both cameras, no goal"),
+                      fixed="slot encoder, both cameras, no goal", holds=WITHOUT_READOUT),
     "table5_7": Table("Table 5.7: temporal window T", (STABILITY, TRAIN_LOG, BEST, CHECKPOINTS), "ablations",
                       tables.window_columns, varies=("window", "epochs"),
                       fixed="slot encoder, both cameras, no goal, one training budget per row (epochs in the "
