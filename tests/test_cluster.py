@@ -34,7 +34,8 @@ DEFAULT = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
 TARGETS = ["encodings", *TABLES]
 
 # Rules that never go to SLURM: the workflow's localrules (evaluation.smk, levers.smk) and the target-only rule.
-LOCAL_RULES = {"best", "findings", "failures", "table", "figure", "figures5_1_to_5_3", "levers", "encodings"}
+LOCAL_RULES = {"best", "findings", "build_comparison", "failures", "table", "figure", "figures5_1_to_5_3", "levers",
+               "encodings"}
 # Their benchmark folders (results/benchmarks/<folder>/ or <folder>.tsv); every other folder is named after its rule.
 LOCAL_BENCHMARKS = {"best", "failures", "tables", "figures", "levers"}
 # The config `compute` stage each rule takes threads and resources from (threads_of / resources_of in

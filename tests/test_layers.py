@@ -31,6 +31,8 @@ def imported_packages(package: str) -> dict[str, set[str]]:
                 found |= {parts[0]} if parts else {alias.name for alias in node.names}
             elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("ocpipe."):
                 found.add(node.module.split(".")[1])
+            elif isinstance(node, ast.ImportFrom) and node.module == "ocpipe":  # from ocpipe import study
+                found |= {alias.name for alias in node.names}
             elif isinstance(node, ast.Import):
                 found |= {a.name.split(".")[1] for a in node.names if a.name.startswith("ocpipe.")}
         out[str(f.relative_to(PACKAGE))] = found - {package}
@@ -41,6 +43,17 @@ def imported_packages(package: str) -> dict[str, set[str]]:
 def test_no_package_imports_one_above_it(package):
     reached = {module: sorted(found & FORBIDDEN[package]) for module, found in imported_packages(package).items()}
     assert not {m: f for m, f in reached.items() if f}, f"{package} imports from above it"
+
+
+def test_the_import_reader_sees_every_form_of_import(tmp_path, monkeypatch):
+    pkg = tmp_path / "evaluation"
+    pkg.mkdir()
+    forms = {"a.py": "from ocpipe import study", "b.py": "import ocpipe.study.tables", "c.py": "from .. import study",
+             "d.py": "from ..study import tables", "e.py": "from ocpipe.study import tables"}
+    for name, line in forms.items():
+        (pkg / name).write_text(line + "\n")
+    monkeypatch.setitem(globals(), "PACKAGE", tmp_path)
+    assert imported_packages("evaluation") == {f"evaluation/{n}": {"study"} for n in forms}
 
 
 def test_the_import_reader_sees_relative_and_absolute_imports():

@@ -161,7 +161,7 @@ def test_a_row_without_weights_keeps_the_columns_of_its_replicated_neighbours(de
     from ocpipe.study import registry, tables
 
     runs = tmp_path / "runs"
-    write_rows(default_config, runs, {"goal2d": _spread(10, [0, 2, 4, 6, 8], 110, classes(1, 1, 20, n=40))})
+    write_rows(default_config, runs, {"encoder_slots_ssl": _spread(10, [0, 2, 4, 6, 8], 110, classes(1, 1, 20, n=40))})
     rows = report.table_rows(default_config, "table5_4", (inputs.STABILITY,), str(runs))
     for row in rows:
         if row.status is None:

@@ -26,7 +26,7 @@ def test_rows_needing_weights_are_reported_not_built(default_config):
     assert "encoders.dino.checkpoint" in skip["DINO CLS"] and "encoders.spot" in skip["SPOT 14 slots"]
     files = targets.inputs(default_config, "table5_4")
     # only the offline slots_ssl row is built, as its 5 policies
-    assert {f.split("/")[2] for f in files} == {"goal2d", "goal2d@1", "goal2d@2", "goal2d@3", "goal2d@4"}
+    assert {f.split("/")[2] for f in files} == {"encoder_slots_ssl", *(f"encoder_slots_ssl@{k}" for k in range(1, 5))}
     assert "dino_cls" not in targets.experiments_of(default_config)
 
 
@@ -113,7 +113,7 @@ def test_window_and_head_tables_read_checkpoints_and_sweeps(one_policy_config, t
 
 def test_figures_draw_rows_and_mark_missing_weights(one_policy_config, tmp_path):
     runs = tmp_path / "runs"
-    _fake_run(runs, "goal2d")
+    _fake_run(runs, "encoder_slots_ssl")
     report.write_figure(one_policy_config, "fig5_5", tmp_path / "fig5_5.png", runs_dir=runs)
     assert (tmp_path / "fig5_5.png").stat().st_size > 5_000
     stack = pl.DataFrame({"class": ["No Grasp", "Grasp No Stack", "Success"], "trivial": [False] * 3,
@@ -209,7 +209,7 @@ def test_csv_keeps_p_values_whole_and_rounds_other_floats(tmp_path):
     assert back.row(0) == (0.1235, 2.1e-06, 0.0123456789, None)
 
 
-def test_summary_prints_table5_1_then_the_findings_built_then_the_other_tables(tmp_path):
+def test_summary_prints_table5_1_then_the_findings_and_two_builds_then_the_other_tables(tmp_path):
     from ocpipe.study.summary import _tables_in_order
 
     (tmp_path / "tables").mkdir()
@@ -217,8 +217,11 @@ def test_summary_prints_table5_1_then_the_findings_built_then_the_other_tables(t
         (tmp_path / "tables" / f"{name}.md").write_text(name)
     order = lambda: [p.stem for p in _tables_in_order(tmp_path)]  # noqa: E731
     assert order() == ["table5_1", "findings_main", "findings_stackcube", "table5_2", "table5_10"]
+    (tmp_path / "tables" / "two_builds_findings_main.md").write_text("two builds")
+    assert order() == ["table5_1", "findings_main", "findings_stackcube", "two_builds_findings_main", "table5_2",
+                       "table5_10"]
     (tmp_path / "tables" / "findings.md").write_text("all twelve")
-    assert order() == ["table5_1", "findings", "table5_2", "table5_10"]  # all twelve replace the targets' own
+    assert order() == ["table5_1", "findings", "two_builds_findings_main", "table5_2", "table5_10"]
 
 
 def test_a_checkpoint_without_its_parameter_count_fails_table5_5_only(one_policy_config, tmp_path):

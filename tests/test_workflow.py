@@ -310,7 +310,8 @@ def test_table_jobs_draw_pairwise_disjoint_test_seeds_and_record_their_settings(
         assert set(eps["seed_pool"]) == {"test"} and set(eps["seed"]) <= set(test_pool.tolist()), f
         draw = "sweep" if kind == "sweep" else f"{kind} {eps['run'][0]}"
         by_exp.setdefault(eps["exp"][0], {}).setdefault(draw, set()).update(eps["seed"].to_list())
-    assert set(by_exp) >= {"pure_visual", "goal2d", "goal3d", "state_control", "fusion_cross_attention"}
+    assert set(by_exp) >= {"pure_visual", "goal2d", "goal3d", "state_control", "fusion_concat",
+                           "fusion_cross_attention"}
     for exp, draws in by_exp.items():
         assert {"sweep", "stability 0", "stability 1"} <= set(draws), exp
         names = sorted(draws)
@@ -353,7 +354,8 @@ def test_dry_run_of_all_audits_the_whole_study_on_both_configs(tmp_path):
         planned = set(re.findall(r"wildcards: exp=([\w-]+)", out))
         assert planned == {"pure_visual", "goal2d", "goal3d", "state_control", "goal2d_exact", "goal2d_exact_224",
                            "head_flatten", "head_deepsets", "head_weighted_pool", "head_slot_transformer",
-                           "fusion_cross_attention", "window20", "window40", "proprio9_global", "proprio9_grouped",
+                           "encoder_slots_ssl", "fusion_concat", "fusion_cross_attention", "window20", "window40",
+                           "proprio9_global", "proprio9_grouped",
                            "weight_time", "weight_u_shaped", "weight_dim_decoupled", "stack_native", "stack_aligned"}
         assert "results/tables/findings.csv" in out
         assert "rule compute:" in out and "results/tables/compute.csv" in out  # the run's compute table, last

@@ -33,12 +33,15 @@ SCENES_STORE = RESULTS + "/features/{task}_{cams}_{res}_{encoder}.scenes.zarr"
 SCENES_SHARD = RESULTS + "/features/shards/{task}_{cams}_{res}_{encoder}.scenes_shard{shard}.zarr"  # merged into it
 
 # one folder per trained policy (policy_id): training, then evaluation
-RUN = RESULTS + "/runs/{exp}"
+RUNS = RESULTS + "/runs"
+RUN = RUNS + "/{exp}"
 CHECKPOINTS = RUN + "/checkpoints"
 TRAIN_LOG = RUN + "/train_log.parquet"
 SWEEP = RUN + "/sweep/epoch_{epoch}"  # .episodes.parquet and .steps.parquet
 BEST = RUN + "/best.json"
 STABILITY = RUN + "/stability/run_{run}"  # .episodes.parquet and .steps.parquet
+# an evaluation run's two files: one row per episode, one per step
+EPISODES, STEPS = ".episodes.parquet", ".steps.parquet"
 FAILURE_RUN = RUN + "/failure_run"
 TRAIN_SEEDS = RUN + "/train_seeds"
 TRAINING_TIME = RUN + "/training_time"  # Table 5.5's one run on the best checkpoint
@@ -53,6 +56,14 @@ FIGURE = RESULTS + "/figures/{figure}.png"
 
 FRAMES_NAME = "{task}_{cams}_{res}"  # a frames store's name, as config `encoders.slots_ssl.train_stores` lists it
 FEATURES_NAME = FRAMES_NAME + "_{encoder}"  # a features store's name
+
+
+def steps_beside(episodes_file) -> str:
+    """The steps file of the evaluation run whose episodes file this is."""
+    name = str(episodes_file)
+    if not name.endswith(EPISODES):
+        raise ValueError(f"{name}: not an evaluation run's episodes file (*{EPISODES})")
+    return name.removesuffix(EPISODES) + STEPS
 
 
 def named(pattern: str, name: str) -> str:

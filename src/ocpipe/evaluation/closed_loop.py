@@ -112,8 +112,8 @@ class ClosedLoop:
         ev = config["evaluation"]
         self.cap = ev["episode_cap"][self.task]
         self.execute = min(ev["execute_actions"], p.network.horizon)
-        self.ensemble = ev.get("temporal_ensemble", 0.0)
-        self.readout_filter = ev.get("readout_filter", "none")
+        self.ensemble = ev["temporal_ensemble"]
+        self.readout_filter = ev["readout_filter"]
         self.trivial_steps = ev["trivial_steps"]
 
     def close(self) -> None:

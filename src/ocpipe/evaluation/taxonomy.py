@@ -11,11 +11,10 @@ StackCube's sub-task funnel counts episodes that reach grasp -> lift -> near tar
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import polars as pl
 
+from .. import paths
 from ..util.atomic import atomic_path
 
 CLASSES = ("Success", "Idle", "No Grasp", "Drop", "Grasp No Stack", "Near Miss", "Unknown")
@@ -89,8 +88,7 @@ def classify_episodes(episode_files, task: str, rules: dict, out_path) -> pl.Dat
     """The classes of every episode of the given evaluation runs (each ``*.episodes.parquet`` beside its
     ``*.steps.parquet``), written to ``out_path``: the `failures` rule."""
     episodes = pl.concat([pl.read_parquet(f) for f in episode_files], how="vertical")
-    steps = pl.concat([pl.read_parquet(Path(str(f).replace(".episodes.parquet", ".steps.parquet")))
-                       for f in episode_files], how="vertical")
+    steps = pl.concat([pl.read_parquet(paths.steps_beside(f)) for f in episode_files], how="vertical")
     classes = classify_run(episodes, steps, task, rules)
     with atomic_path(out_path) as tmp:
         classes.write_parquet(tmp)

@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-ALPHA = 0.05
+from .pooled import ALPHA
+
 POWER = 0.8
 MARGIN = 0.10  # of a rate or share, unless a finding names another
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import polars as pl
 
+from .. import paths
 from ..config.errors import ConfigError
 from ..config.seed_pools import policies_drawn, pool_problems
 from ..stats import by_policy
@@ -45,7 +46,7 @@ def _checks(config: dict, finding: findings.Finding, runs_dir) -> tuple[list, st
     return checks, findings.verdict_of(checks, rows)
 
 
-def compare_findings(config: dict, scope: str, runs_dir="results/runs") -> pl.DataFrame:
+def compare_findings(config: dict, scope: str, runs_dir=paths.RUNS) -> pl.DataFrame:
     a, b = config, second_build(config)
     out = []
     for fid in findings.SCOPES[scope]:
@@ -66,7 +67,7 @@ def _summary(config: dict, table: str, runs_dir) -> dict[str, dict]:
             for r in report.table_rows(config, table, (STABILITY,), runs_dir) if r.status is None}
 
 
-def compare_rows(config: dict, scope: str, runs_dir="results/runs") -> pl.DataFrame:
+def compare_rows(config: dict, scope: str, runs_dir=paths.RUNS) -> pl.DataFrame:
     """Each row of the scope's success-rate tables: both builds' mean and 95 % interval over policies (SD floored at
     one policy's episode noise), whether each mean lies within the other's interval, and Welch's two-sided test of
     the two means over their policies. The interval check is the stricter: even two builds of one recipe miss it
@@ -98,7 +99,7 @@ def _p_apart(x: dict, y: dict) -> float | None:
     return min(1.0, 2 * min(w.p_below(), w.p_above()))
 
 
-def write(config: dict, scope: str, csv_path, rows_csv_path, md_path, runs_dir="results/runs") -> tuple[bool, bool]:
+def write(config: dict, scope: str, csv_path, rows_csv_path, md_path, runs_dir=paths.RUNS) -> tuple[bool, bool]:
     """Both comparisons, as CSVs and one Markdown page; returns (no finding resolved both ways, every mean within
     the other build's interval)."""
     f, r = compare_findings(config, scope, runs_dir), compare_rows(config, scope, runs_dir)

@@ -14,7 +14,7 @@ import polars as pl
 from .. import paths
 from ..config.experiments import resolve, saved_epochs
 
-EPISODES = ".episodes.parquet"
+EPISODES = paths.EPISODES
 
 
 @dataclass(frozen=True)
@@ -23,7 +23,7 @@ class Input:
     locate: Callable[[dict, str, str], list[str]] = field(compare=False)  # (config, policy id, runs dir) -> files
     load: Callable[[dict[int, list[str]]], object] = field(compare=False)  # the row's {replicate: files} -> its data
 
-    def files(self, config: dict, pid: str, runs_dir: str = "results/runs") -> list[str]:
+    def files(self, config: dict, pid: str, runs_dir: str = paths.RUNS) -> list[str]:
         """The files holding this input of policy ``pid`` (a policy id, or an experiment's name: its policy 0)."""
         return self.locate(config, pid, str(runs_dir))
 

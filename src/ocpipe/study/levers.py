@@ -77,7 +77,7 @@ def write(config: dict, inputs: dict[str, list[tuple]], csv_path, md_path) -> pl
     footer = (f"Profile {config.get('profile', '?')}. Every lever trained as {k} "
               f"{'policy' if k == 1 else 'policies'}, each evaluated on the same {n} seeds of the validation pool "
               f"(never a table's seeds); p: {test}, against the lever of the same experiment without overrides. A "
-              "difference is resolved only where p < 0.05.")
+              f"difference is resolved only where p < {pooled.ALPHA}.")
     with atomic_path(csv_path) as tmp:
         table.write_csv(tmp)
     with atomic_path(md_path) as tmp:

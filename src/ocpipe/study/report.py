@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import polars as pl
 
+from .. import paths
 from ..config.experiments import resolve
 from ..encoders.registry import tokens_per_camera
 from ..paths import split_policy
@@ -36,7 +37,7 @@ def write(table: pl.DataFrame, csv_path, md_path, title: str, footer: str = "") 
     return table
 
 
-def table_rows(config: dict, table: str, needs=None, runs_dir="results/runs") -> list[tables.Row]:
+def table_rows(config: dict, table: str, needs=None, runs_dir=paths.RUNS) -> list[tables.Row]:
     """The rows of a table (or of a figure drawing a table's rows), each with the artefacts of its K policies."""
     skip = targets.unavailable(config, table)
     out = []
@@ -52,7 +53,7 @@ def table_rows(config: dict, table: str, needs=None, runs_dir="results/runs") ->
     return out
 
 
-def write_table(config: dict, table: str, csv_path, md_path, runs_dir="results/runs") -> pl.DataFrame:
+def write_table(config: dict, table: str, csv_path, md_path, runs_dir=paths.RUNS) -> pl.DataFrame:
     spec, rows = TABLES[table], table_rows(config, table, runs_dir=runs_dir)
     if spec.columns is None:
         frame = tables.table5_2({r.label: r.data[FAILURES] for r in rows if r.status is None}, spec.always_classes)
@@ -61,7 +62,7 @@ def write_table(config: dict, table: str, csv_path, md_path, runs_dir="results/r
     return write(frame, csv_path, md_path, spec.title, conditions.footer(config, table))
 
 
-def write_findings(config: dict, scope: str, csv_path, md_path, runs_dir="results/runs") -> pl.DataFrame:
+def write_findings(config: dict, scope: str, csv_path, md_path, runs_dir=paths.RUNS) -> pl.DataFrame:
     """The findings of ``scope`` (findings.SCOPES), each judged on the episode files its table reads."""
     out = []
     for fid in findings.SCOPES[scope]:
@@ -88,13 +89,13 @@ def write_findings(config: dict, scope: str, csv_path, md_path, runs_dir="result
     return write(frame, csv_path, md_path, "Findings of the study, judged on this build", note)
 
 
-def write_figure(config: dict, figure: str, out_png, runs_dir="results/runs") -> None:
+def write_figure(config: dict, figure: str, out_png, runs_dir=paths.RUNS) -> None:
     spec = FIGURES[figure]
     rows = table_rows(config, spec.table, spec.needs, runs_dir)
     spec.draw(rows, out_png)
 
 
-def write_figures5_1_to_5_3(config: dict, fig5_1, fig5_2, fig5_3, runs_dir="results/runs") -> None:
+def write_figures5_1_to_5_3(config: dict, fig5_1, fig5_2, fig5_3, runs_dir=paths.RUNS) -> None:
     rows = [r for r in table_rows(config, SPATIAL_FIGURES_TABLE, SPATIAL_FIGURES_NEEDS, runs_dir) if r.status is None]
     figures.fig5_1({r.label: r.data[TRAIN_LOG] for r in rows}, {r.label: r.data[SWEEP] for r in rows}, fig5_1)
     figures.fig5_2({r.label: r.data[STABILITY] for r in rows}, fig5_2)

@@ -99,9 +99,10 @@ def _policies(results: Path) -> list[str]:
 
 def _tables_in_order(results: Path) -> list[Path]:
     """Table 5.1, then the findings (all twelve where built, else those of the targets built: main, ablations,
-    StackCube), then Tables 5.2-5.11."""
+    StackCube), then the two-build comparisons of those built (target two_builds), then Tables 5.2-5.11."""
     tables = sorted(results.glob("tables/table5_*.md"), key=lambda p: int(p.stem.removeprefix("table5_")))
     every = results / "tables" / "findings.md"
     partial = [results / "tables" / f"{n}.md" for n in SCOPES if n != "findings"]  # main, ablations, StackCube
     findings = [every] if every.is_file() else [p for p in partial if p.is_file()]
-    return tables[:1] + findings + tables[1:]
+    builds = [p for p in (results / "tables" / f"two_builds_{n}.md" for n in SCOPES if n != "findings") if p.is_file()]
+    return tables[:1] + findings + builds + tables[1:]
