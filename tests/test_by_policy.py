@@ -37,6 +37,24 @@ def test_rows_that_agree_closely_keep_their_episode_noise():
     assert B.less(none, none).outcome == "tie" and B.less(none, none).resolvable_gap > 0.005  # ~1 point
 
 
+def test_means_of_episodes_keep_their_episode_noise():
+    # five policies whose mean episode lengths happen to agree to 0.1 step, each mean of 40 lengths spread by ~30
+    # steps: the spread of the five means alone would resolve a 1-step gap; floored at the variance of one
+    # policy's mean from its episodes (~30^2 / 40), it cannot
+    rng = np.random.default_rng(0)
+    samples = [rng.normal(0, 30, EPISODES) for _ in range(2 * K)]
+    a = B.PolicyValues.of_samples([s - s.mean() + 120 + 0.1 * i for i, s in enumerate(samples[:K])])
+    b = B.PolicyValues.of_samples([s - s.mean() + 121 + 0.1 * i for i, s in enumerate(samples[K:])])
+    assert B.less(B.PolicyValues(a.values), B.PolicyValues(b.values)).outcome == "holds"  # without the floor
+    floored = B.less(a, b)
+    assert floored.outcome == "unresolved" and floored.resolvable_gap > 5  # se ~ sqrt(2 * 30^2 / 40 / 5) = 3 steps
+    noise = np.mean([s.var(ddof=1) / EPISODES for s in samples[:K]])
+    assert a.noise == pytest.approx(noise, rel=1e-12)  # derived: a mean of five float64 variances
+    # a policy without episodes is left out, and one episode has no spread to floor with
+    assert B.PolicyValues.of_samples([[1.0], [], [3.0]]).noise is None
+    assert B.PolicyValues.of_samples([[1.0], [], [3.0]]).policies == 2
+
+
 def test_equal_and_at_most_claims_hold_only_when_their_test_resolves_them():
     same = row(20, 21, 19, 20, 20), row(20, 19, 21, 20, 20)
     assert B.equal(*same).outcome == "holds"  # 50 % against 50 %, tightly: within 10 points, resolved

@@ -149,6 +149,11 @@ def test_run_files_come_from_the_path_patterns_under_any_runs_folder(default_con
         "/x/runs/goal2d/stability/run_0.episodes.parquet")
     assert inputs.SWEEP.files(default_config, "goal2d")[-1] == (
         paths.SWEEP.format(exp="goal2d", epoch=f"{default_config['policy']['epochs']:04d}") + ".episodes.parquet")
+    # each episodes file has its steps beside it; anything else is named, not guessed at
+    assert paths.steps_beside("/x/runs/goal2d/stability/run_0.episodes.parquet") == (
+        "/x/runs/goal2d/stability/run_0.steps.parquet")
+    with pytest.raises(ValueError, match=r"run_0.parquet: not an evaluation run's episodes file"):
+        paths.steps_beside("/x/run_0.parquet")
 
 
 def test_store_names_fill_the_path_patterns():

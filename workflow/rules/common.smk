@@ -2,6 +2,7 @@
 # section reruns exactly the jobs that read it), target lists and every input function.
 from ocpipe import paths
 from ocpipe.config import experiments as _exp
+from ocpipe.config import job_params
 from ocpipe.policy.settings import ENCODERS
 from ocpipe.study import inputs, targets
 
@@ -32,34 +33,48 @@ def resources_of(stage):
     return {k: v for k, v in c.items() if k != "threads" and not (k == "gpu" and not v)}
 
 
-RENDER_ONLY_SIM_KEYS = ("lavapipe_threads", "robot_visual_keep", "ground_cells")
-
-# read after the episodes are run (failure classification, the best checkpoint's choice), never by an evaluation job
-EVALUATION_KEYS_READ_LATER = ("failure_rules", "sweep_alpha")
-
-
+# a job's params are the config it reads, sliced by ocpipe.config.job_params (each function says what its job
+# reads): a change to a setting reruns the jobs that read it, not every job that was handed its section
 def evaluation_job_params():
-    """The protocol an evaluation job runs: the evaluation section without what only later rules read, so changing
-    a failure threshold reruns `failures` and changing `sweep_alpha` reruns `best`, not one episode."""
-    return {k: v for k, v in config["evaluation"].items() if k not in EVALUATION_KEYS_READ_LATER}
+    """The protocol an evaluation job runs: the evaluation section without what only later rules read (failure
+    thresholds: `failures`; `sweep_alpha`: `best`)."""
+    return job_params.evaluation_protocol(config)
 
 
 def demo_params():
-    """Demo jobs read the evaluation pool only to keep demo seeds out of it: pass just its bounds, so changing
-    other evaluation settings never regenerates demos."""
-    pool = {k: config["evaluation"][k] for k in ("seed_pool_start", "seed_pool_size")}
-    # demo generation renders nothing: the settings of how cameras draw the scene cannot change a demo
-    sim = {k: v for k, v in config["sim"].items() if k not in RENDER_ONLY_SIM_KEYS}
-    return {"sim": sim, **cfg("demos"), "evaluation": pool}
+    """Demo jobs: the demos section, the simulator without what only cameras draw, the evaluation pool's bounds."""
+    return job_params.demo_job(config)
 
 
-def scene_params():
-    """What the scenes job reads: the rendering settings, the encoders, the scene count and seeds, and only the
-    bounds of the demo and evaluation seeds it must stay clear of."""
-    demos = {k: config["demos"][k] for k in ("seed_start", "num_demos", "attempts_per_demo")}
-    pool = {k: config["evaluation"][k] for k in ("seed_pool_start", "seed_pool_size")}
-    frames = {"goal_marker_visible": config["frames"]["goal_marker_visible"]}
-    return {**cfg("sim", "cameras", "encoders", "scenes"), "frames": frames, "demos": demos, "evaluation": pool}
+def frames_shard_params(w):
+    """A frames shard: the rendering simulator, the store's camera set, and the `frames` keys a shard reads."""
+    return job_params.frames_shard_job(config, w.cams)
+
+
+def features_encoders(w):
+    """The `encoders` sections building the job's encoder reads (none for slots_ssl: its checkpoint is an input)."""
+    return job_params.encoders_of(config, w.encoder)
+
+
+def diagnostics_holdout(w):
+    """The held-out episodes a features store's diagnostics score on (None: a store slots_ssl never trained on)."""
+    return job_params.diagnostics_holdout(config, f"{w.task}_{w.cams}_{w.res}")
+
+
+def scene_params(w):
+    """What a scenes job reads: the rendering simulator, its camera set, its encoder's sections, the scene count and
+    seeds, and only the bounds of the demo and evaluation seeds it must stay clear of."""
+    return job_params.scenes_job(config, w.cams, w.encoder)
+
+
+def evaluation_env(policy):
+    """What an evaluation job of ``policy`` builds its environment and encoder from (the protocol aside)."""
+    return job_params.evaluation_job(config, policy)
+
+
+def training_camera_approx(policy):
+    """The hand-entered camera models of the policy's camera set (its approximate 2d goal)."""
+    return job_params.training_camera_approx(config, policy)
 
 
 def frames_stores():

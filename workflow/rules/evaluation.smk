@@ -29,12 +29,12 @@ TABLE_CFG = cfg(
 )
 
 
-# what every evaluation job reads: its policy, the protocol, and the config sections its environment and encoder
-# are built from
+# what every evaluation job reads: its policy, the protocol, and what of the config its environment and encoder are
+# built from (its camera set's cameras, its encoder's sections: job_params.evaluation_job)
 EVAL_PARAMS = {
     "policy": policy_of,
     "evaluation": evaluation_job_params(),
-    "cfg": cfg("sim", "cameras", "camera_approx", "frames", "encoders"),
+    "cfg": lambda w: evaluation_env(policy_of(w)),
     "seed": config["seed"],
 }
 

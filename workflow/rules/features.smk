@@ -18,8 +18,10 @@ rule features:
     resources:
         **resources_of("features"),
     params:
-        encoders=config["encoders"],
-        features=config["features"],
+        # only what encoding reads: the encoder's own config sections and the encoding keys of `features` (not the
+        # attention maps' pairs or the diagnostics' probe settings)
+        encoders=features_encoders,
+        features=job_params.encoding(config),
     script:
         "../scripts/features.py"
 
@@ -40,7 +42,7 @@ rule scenes_shard:
     resources:
         **resources_of("frames"),
     params:
-        config=scene_params(),
+        config=scene_params,
         dtype=config["features"]["dtype"],
         seed=config["seed"],
     script:
@@ -81,8 +83,7 @@ rule features_diagnostics:
     resources:
         **resources_of("light"),
     params:
-        holdout=config["encoders"]["slots_ssl"]["holdout_episodes"],
-        train_stores=config["encoders"]["slots_ssl"]["train_stores"],
+        holdout=diagnostics_holdout,
         probe_holdout=config["features"]["probe_holdout"],
         probe_mlp_epochs=config["features"]["probe_mlp_epochs"],
         seed=config["seed"],

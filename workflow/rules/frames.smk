@@ -19,7 +19,7 @@ rule frames_shard:
     resources:
         **resources_of("frames"),
     params:
-        cfg=cfg("sim", "frames", "cameras", "camera_approx"),
+        cfg=frames_shard_params,
     script:
         "../scripts/frames_shard.py"
 

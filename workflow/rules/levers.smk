@@ -16,7 +16,7 @@ use rule train as lever_train with:
     params:
         policy=lever_of,
         seed=training_seed,
-        camera_approx=config["camera_approx"],
+        camera_approx=lambda w: training_camera_approx(lever_of(w)),
 
 
 rule lever_eval:
@@ -37,7 +37,7 @@ rule lever_eval:
     params:
         policy=lever_of,
         evaluation=evaluation_job_params(),
-        cfg=cfg("sim", "cameras", "camera_approx", "frames", "encoders"),
+        cfg=lambda w: evaluation_env(lever_of(w)),
         seed=config["seed"],
         episodes=config["levers"]["episodes"],
     script:

@@ -20,6 +20,6 @@ rule train:
     params:
         policy=policy_of,
         seed=training_seed,
-        camera_approx=config["camera_approx"],
+        camera_approx=lambda w: training_camera_approx(policy_of(w)),
     script:
         "../scripts/train.py"

@@ -9,6 +9,12 @@ from ..frames.store import open_store
 SLOT_ENCODERS = ("slots_ssl", "spot")
 DINO_READOUTS = ("cls", "grid4", "dense")
 ENCODERS = SLOT_ENCODERS + tuple(f"dino_{r}" for r in DINO_READOUTS) + ("state",)
+# the sections of config `encoders` that build() reads for each encoder: none for slots_ssl (its weights are the
+# workflow's own checkpoint, an input file, whose settings train_slots_ssl reads), SPOT only its own (it names the
+# DINO weights it loads itself), the DINO readouts `dino`, the state control `state`. A job building an encoder is
+# handed just these (ocpipe.config.job_params), so a change to another encoder's settings does not rerun it.
+CONFIG_SECTIONS = {"slots_ssl": (), "spot": ("spot",), **{f"dino_{r}": ("dino",) for r in DINO_READOUTS},
+                   "state": ("state",)}
 
 
 def build(name: str, encoders_cfg: dict, frames_path: str | Path, trained_checkpoint: str | Path | None = None,
@@ -17,7 +23,8 @@ def build(name: str, encoders_cfg: dict, frames_path: str | Path, trained_checkp
     it encodes images of only these, in this order (default: all of the store's).
 
     ``trained_checkpoint``: a checkpoint the workflow produced (slots_ssl, or SPOT's slot module trained on DINO);
-    user-given weights come from ``encoders_cfg`` and a missing file names its config key."""
+    user-given weights come from ``encoders_cfg`` (of it, only the sections CONFIG_SECTIONS names) and a missing file
+    names its config key."""
     if name not in ENCODERS:
         raise ValueError(f"unknown encoder {name!r}; known: {', '.join(ENCODERS)}")
     if name == "state":

@@ -39,6 +39,9 @@ class PolicyValues:
 
     values: np.ndarray
     episodes: np.ndarray | None = None
+    # values that are means over a policy's episodes (lengths, returns): the variance of one policy's mean from its
+    # episodes alone, the floor of the between-policy variance as the binomial one is for rates
+    noise: float | None = None
 
     @classmethod
     def of_counts(cls, counts) -> PolicyValues:
@@ -47,6 +50,13 @@ class PolicyValues:
         if (n <= 0).any():
             raise ValueError(f"a policy with no episodes among {counts}")
         return cls(k / n, n)
+
+    @classmethod
+    def of_samples(cls, samples) -> PolicyValues:
+        """From each policy's episode values (lengths, returns): its mean, with the episode noise of a mean."""
+        kept = [np.asarray(s, float) for s in samples if len(s)]
+        noise = [s.var(ddof=1) / len(s) for s in kept if len(s) > 1]
+        return cls(np.array([s.mean() for s in kept]), noise=float(np.mean(noise)) if noise else None)
 
     @property
     def mean(self) -> float:
@@ -60,9 +70,9 @@ class PolicyValues:
         """The between-policy variance of one policy's value, floored at the episode noise of a policy at ``rate``
         (module docstring; the two rows' pooled rate, as under 'no difference')."""
         sample = float(self.values.var(ddof=1)) if self.policies > 1 else 0.0
-        if self.episodes is None or rate is None:
-            return sample
-        return max(sample, rate * (1 - rate) * float((1 / self.episodes).mean()))
+        if self.episodes is not None and rate is not None:
+            return max(sample, rate * (1 - rate) * float((1 / self.episodes).mean()))
+        return sample if self.noise is None else max(sample, self.noise)
 
 
 @dataclass(frozen=True)

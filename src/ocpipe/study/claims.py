@@ -85,9 +85,10 @@ def values_greater(a: str, va: list[list[float]], b: str, vb: list[list[float]],
     """Claim: a's values (episode lengths, rewards) are larger than b's: per policy, the mean of its values."""
     if len(va) == 1 and len(vb) == 1:
         return pooled.values_greater(a, va[0], b, vb[0], what)
-    ma, mb = (np.array([np.mean(v) for v in vs if len(v)]) for vs in (va, vb))
+    pa, pb = PolicyValues.of_samples(va), PolicyValues.of_samples(vb)
+    ma, mb = pa.values, pb.values
     text = (f"{what} {a} {ma.mean():.1f} ± {ma.std(ddof=1):.1f} ({len(ma)} policies) > "
             f"{b} {mb.mean():.1f} ± {mb.std(ddof=1):.1f} ({len(mb)} policies)")
     if len(ma) < 2 or len(mb) < 2:
         return _too_few(text)
-    return _check(text, by_policy.less(PolicyValues(mb), PolicyValues(ma)), unit)
+    return _check(text, by_policy.less(pb, pa), unit)
