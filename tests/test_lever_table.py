@@ -49,7 +49,16 @@ def test_a_lever_resolves_over_its_experiment_and_bad_levers_are_named(default_c
     lever = resolve_lever(default_config, "goal2d_dropout")
     assert lever == {**resolve(default_config, "goal2d"), "dropout": 0.1, "epochs": 16, "save_every": 8,
                      "name": "goal2d_dropout"}
+    # a lever's epochs is the base budget its experiment takes its share of, and its own share replaces the
+    # experiment's: never both (window20 trains 0.44 of the budget)
     sets = default_config["levers"]["sets"]
+    sets["w_budget"] = {"experiment": "window20", "policy": {"epochs": 100}}
+    sets["w_share"] = {"experiment": "window20", "policy": {"epoch_share": 0.5}}
+    base = default_config["policy"]["epochs"]
+    assert resolve_lever(default_config, "w_budget")["epochs"] == 44
+    assert resolve_lever(default_config, "w_share")["epochs"] == round(base * 0.5)
+    assert "epoch_share" not in resolve_lever(default_config, "w_share")
+    del sets["w_budget"], sets["w_share"]
     bad = {**default_config, "levers": {"episodes": 500, "replicates": 1, "build": ["goal2d", "goal2d_typo"], "sets": {
         **sets, "x": {"experiment": "nope"}, "y": {"experiment": "goal2d", "policy": {"visual_head": "none",
                                                                                        "object_readout": False}}}}}

@@ -12,22 +12,29 @@ def _with_epoch_share(policy: dict) -> dict:
     return {**policy, "epochs": max(1, round(policy["epochs"] * share))}
 
 
-def resolve(config: dict, name: str) -> dict:
-    """The full policy settings of experiment ``name`` (base policy, then its overrides); ``epoch_share`` is
-    applied to ``epochs`` here, so a checkpoint records the epochs it was trained for."""
+def _overridden(config: dict, name: str) -> dict:
+    """Experiment ``name``'s settings before ``epoch_share`` is applied: the base policy, then its overrides."""
     experiments = config["experiments"]
     if name not in experiments:
         raise ConfigError(f"experiments.{name}: no such experiment (defined: {', '.join(sorted(experiments))})")
-    return _with_epoch_share({**config["policy"], **(experiments[name] or {}), "name": name})
+    return {**config["policy"], **(experiments[name] or {}), "name": name}
+
+
+def resolve(config: dict, name: str) -> dict:
+    """The full policy settings of experiment ``name`` (base policy, then its overrides); ``epoch_share`` is
+    applied to ``epochs`` here, so a checkpoint records the epochs it was trained for."""
+    return _with_epoch_share(_overridden(config, name))
 
 
 def resolve_lever(config: dict, name: str) -> dict:
-    """The full policy settings of lever ``name`` (config `levers.sets`): its experiment's, then its overrides."""
+    """The full policy settings of lever ``name`` (config `levers.sets`): its experiment's, then its overrides,
+    then ``epoch_share`` once: a lever's ``epochs`` is the base budget its experiment takes its share of, and a
+    lever's own ``epoch_share`` replaces the experiment's (applied twice, shares would compound)."""
     sets = config["levers"]["sets"]
     if name not in sets:
         raise ConfigError(f"levers.sets.{name}: no such lever (defined: {', '.join(sorted(sets))})")
     lever = sets[name]
-    return _with_epoch_share({**resolve(config, lever["experiment"]), **lever.get("policy", {}), "name": name})
+    return _with_epoch_share({**_overridden(config, lever["experiment"]), **lever.get("policy", {}), "name": name})
 
 
 def saved_epochs(policy: dict) -> list[int]:
