@@ -261,18 +261,40 @@ UPSTREAM = {"train", "lever_train", "lever_eval", "features", "frames_shard"}
 BEST_FOLLOWERS = {"stability", "failure_run", "training_time_run", "train_seed_run"}  # they run the chosen checkpoint
 
 
+ENCODING = {"features", "scenes_shard", "features_diagnostics", "attention_maps"}
+REPORTS = {"table", "findings"}
+
+
 @pytest.mark.parametrize(("change", "first_rule", "its_output", "not_rerun"), [
-    ({"failure_rules": {"near_miss_m": 0.2}}, "failures", "failures.parquet", UPSTREAM | {"sweep"} | BEST_FOLLOWERS),
-    ({"sweep_alpha": 0.5}, "best", "best.json", UPSTREAM | {"sweep"})])
-def test_a_setting_read_after_the_episodes_reruns_only_what_follows_its_rule(tiny_run, change, first_rule, its_output,
-                                                                              not_rerun):
-    (tiny_run / "later.yaml").write_text(yaml.safe_dump({"evaluation": change}))
-    counts = job_counts(snakemake(tiny_run, "--configfile", "tiny.yaml", "later.yaml", "-n", *TABLES).stdout)
-    # the rule that reads the setting reruns for every policy of the tables, then what follows it; no rule before it
-    policies = len(list((tiny_run / "results" / "runs").glob(f"*/{its_output}")))
-    assert counts.get(first_rule) == policies, counts
+    ({"evaluation": {"failure_rules": {"near_miss_m": 0.2}}}, "failures", "runs/*/failures.parquet",
+     UPSTREAM | {"sweep"} | BEST_FOLLOWERS),
+    ({"evaluation": {"sweep_alpha": 0.5}}, "best", "runs/*/best.json", UPSTREAM | {"sweep"}),
+    # read by the diagnostics' probes and the attention maps alone, not by the encoding: no policy retrains
+    ({"features": {"probe_mlp_epochs": 3}}, "features_diagnostics", "features/*.diagnostics.json",
+     UPSTREAM | {"scenes_shard", "attention_maps", "sweep"} | REPORTS),
+    ({"features": {"attention_pairs": [[0, 0]]}}, "attention_maps", "figures/attention_*.png",
+     UPSTREAM | {"scenes_shard", "features_diagnostics", "sweep"} | REPORTS),
+    # encoders no row of these tables uses: no store is encoded again and no policy evaluated again; only the
+    # tables, which read every encoder's section (whether its weights are given, its tokens per camera), rerun
+    ({"encoders": {"dino": {"image_size": 112}, "spot": {"image_size": 112}}}, "table", "tables/table5_*.csv",
+     UPSTREAM | ENCODING | {"sweep", "best"} | BEST_FOLLOWERS),
+    # the state control's token: its features store alone (and its policies), not a slots_ssl store or policy
+    ({"encoders": {"state": {"tcp_relative": False}}}, "features", "features/*_state.zarr",
+     {"frames_shard", "train_slots_ssl", "scenes_shard", "features_diagnostics", "attention_maps", "lever_train",
+      "lever_eval"}),
+    # a camera of the dual set: its stores' frames shards, not those of StackCube's native stores (base + hand)
+    ({"cameras": {"side": {"fov_deg": 80.0}}}, "frames_shard", "frames/shards/*_dual_*/shard*.json",
+     {"demos_shard", "demos_merge"})])
+def test_a_setting_reruns_only_the_jobs_that_read_it_and_what_follows(tiny_run, change, first_rule, its_output,
+                                                                       not_rerun):
+    (tiny_run / "later.yaml").write_text(yaml.safe_dump(change))
+    out = snakemake(tiny_run, "--configfile", "tiny.yaml", "later.yaml", "-n", "encodings", *TABLES).stdout
+    counts = job_counts(out)
+    # the rule that reads the setting reruns for each of its outputs in the tiny run, then what follows it; no rule
+    # that does not read it and no rule before it
+    assert counts.get(first_rule) == len(list((tiny_run / "results").glob(its_output))), counts
     assert not set(counts) & not_rerun, counts
-    assert "table" in counts and "findings" in counts
+    assert REPORTS <= set(counts) or REPORTS <= not_rerun, counts
 
 
 def test_fusion_table_end_to_end_with_training_seed_runs(tiny_run):

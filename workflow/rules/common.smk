@@ -1,5 +1,5 @@
-# What the stage files share: wildcard constraints, config slices passed as params (so a change in one config
-# section reruns exactly the jobs that read it), target lists and every input function.
+# What the stage files share: wildcard constraints, config slices passed as params (ocpipe.config.job_params: a
+# change to a setting reruns exactly the jobs that read it), target lists and every input function.
 from ocpipe import paths
 from ocpipe.config import experiments as _exp
 from ocpipe.config import job_params
