@@ -3,7 +3,7 @@
 from ocpipe import paths
 from ocpipe.config import experiments as _exp
 from ocpipe.config import job_params
-from ocpipe.policy.settings import ENCODERS
+from ocpipe.encoders.registry import ENCODERS, SLOT_ENCODERS
 from ocpipe.study import inputs, targets
 
 
@@ -97,7 +97,7 @@ def frames_targets():
 
 def _features_outputs(store, enc):
     out = [paths.features_store(f"{store}_{enc}"), paths.features_diagnostics(f"{store}_{enc}")]
-    return out + ([paths.named(paths.ATTENTION_FIGURE, f"{store}_{enc}")] if enc in ("slots_ssl", "spot") else [])
+    return out + ([paths.named(paths.ATTENTION_FIGURE, f"{store}_{enc}")] if enc in SLOT_ENCODERS else [])
 
 
 def features_targets(encoders=("slots_ssl",)):

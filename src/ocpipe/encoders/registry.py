@@ -8,6 +8,7 @@ from ..frames.store import open_store
 
 SLOT_ENCODERS = ("slots_ssl", "spot")
 DINO_READOUTS = ("cls", "grid4", "dense")
+# every encoder a features store can be made with ('state': the privileged-state control's object pose)
 ENCODERS = SLOT_ENCODERS + tuple(f"dino_{r}" for r in DINO_READOUTS) + ("state",)
 # the sections of config `encoders` that build() reads for each encoder: none for slots_ssl (its weights are the
 # workflow's own checkpoint, an input file, whose settings train_slots_ssl reads), SPOT only its own (it names the

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from dataclasses import MISSING, dataclass, field, fields
 
+from ..encoders.registry import ENCODERS  # the frozen encoders a features store can be made with
+
 # Levers that were measured, lost and were removed, with the value that means "off" (the study's) and the last
 # commit that had them (docs/journal.md has their figures). A checkpoint that names one at that value loads;
 # one trained with it on cannot be rebuilt by this code.
@@ -25,8 +27,6 @@ def setting(key: str, schema: dict, doc: str, default=MISSING):
     return field(default=default, metadata={"key": key, "schema": schema, "doc": doc})
 
 
-# the frozen encoders a features store can be made with ('state': the privileged-state control's object pose)
-ENCODERS = ("slots_ssl", "spot", "dino_cls", "dino_grid4", "dino_dense", "state")
 
 
 def enum(*values) -> dict:
