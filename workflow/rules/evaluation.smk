@@ -2,7 +2,7 @@
 # checkpoint, stability runs (one job each), Table 5.5's training-time runs, training-seed runs, failure
 # classification (docs/study.md, Failure taxonomy), and the study's tables and figures (docs/study.md, Tables and
 # figures).
-from ocpipe.study import builds, findings, registry, targets
+from ocpipe.study import builds, conditions, findings, registry, targets
 
 
 localrules:
@@ -167,6 +167,8 @@ rule table:
     weights the config does not give say so instead of failing the table."""
     input:
         lambda w: targets.inputs(config, w.table),
+        # the footer names where the rows depart from the study's recipe, which this file states
+        recipe=str(conditions.STUDY_PROFILE),
     output:
         csv=report(f"{paths.TABLE}.csv", category="Tables", labels={"table": "{table}"}),
         md=f"{paths.TABLE}.md",

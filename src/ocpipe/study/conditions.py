@@ -87,7 +87,9 @@ def departures(config: dict, table: str) -> list[str]:
             out.append(f"{key} " + ", ".join(f"{v} ({label})" for label, v in off.items()))
         else:
             others = [label for label in values if label not in off]
-            out.append(f"{key} {next(iter(shown.values()))}" + (f" (not {', '.join(others)})" if others else ""))
+            named = ("" if not others else f" ({', '.join(off)} only)" if len(off) < len(others)
+                     else f" (not {', '.join(others)})")  # whichever list is shorter
+            out.append(f"{key} {next(iter(shown.values()))}{named}")
         if key == "object_readout":
             agreed = [k for k in READOUT_DETAILS if len({repr(s.get(k)) for s in settings.values()}) == 1]
             out += [f"{k} {next(iter(settings.values()))[k]}" for k in agreed]
