@@ -35,8 +35,8 @@ rule spatial_grounding:
     input:
         expand(f"{paths.TABLE}.csv", table=registry.tables_in("main")),
         f"{paths.TABLE_DIR}/findings_main.csv",
-        expand(paths.FIGURE, figure=("fig5_1", "fig5_2", "fig5_3")),
-        paths.features_diagnostics(_exp.features_store(_exp.resolve(config, "goal3d"))),
+        expand(paths.FIGURE, figure=registry.SPATIAL_FIGURES),
+        [paths.features_diagnostics(s) for s in targets.image_stores(config, registry.SPATIAL_FIGURES_TABLE)],
 
 
 rule encodings:

@@ -30,6 +30,13 @@ def test_rows_needing_weights_are_reported_not_built(default_config):
     assert "dino_cls" not in targets.experiments_of(default_config)
 
 
+def test_a_tables_image_stores_leave_out_the_control_and_rows_without_weights(default_config):
+    assert targets.image_stores(default_config, "table5_1") == ["PickCube-v1_dual_128_slots_ssl"]  # 3 rows, 1 store
+    assert targets.image_stores(default_config, "table5_10") == ["StackCube-v1_native_128_slots_ssl",
+                                                                 "StackCube-v1_dual_128_slots_ssl"]
+    assert targets.image_stores(default_config, "table5_4") == ["PickCube-v1_dual_128_slots_ssl"]  # no DINO weights
+
+
 def test_given_weights_put_those_rows_in_the_graph(default_config, tmp_path):
     config = deep_merge(default_config, {"encoders": {"dino": {"checkpoint": str(tmp_path / "dino.pth")}}})
     assert set(targets.unavailable(config, "table5_4")) == {"SPOT 14 slots"}

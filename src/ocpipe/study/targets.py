@@ -8,7 +8,7 @@ reported as such instead of being built."""
 from __future__ import annotations
 
 from .. import paths
-from ..config.experiments import missing_weights, resolve
+from ..config.experiments import features_store, missing_weights, resolve
 from .findings import BY_ID, SCOPES
 from .inputs import Input
 from .registry import TABLES
@@ -60,3 +60,10 @@ def findings_inputs(config: dict, scope: str) -> list[str]:
         f = BY_ID[fid]
         out += [p for p in inputs(config, f.table, f.needs) if p not in out]
     return out
+
+
+def image_stores(config: dict, table: str) -> list[str]:
+    """The features stores of a table's rows that read images (not the privileged-state control), in row order."""
+    stores = [features_store(resolve(config, exp)) for label, exp in rows(config, table).items()
+              if label not in unavailable(config, table) and resolve(config, exp)["encoder"] != "state"]
+    return list(dict.fromkeys(stores))
