@@ -278,9 +278,9 @@ rule figures5_1_to_5_3:
         fig5_2=report(paths.FIGURE.format(figure="fig5_2"), category="Figures", labels={"figure": "5.2 episode length"}),
         fig5_3=report(paths.FIGURE.format(figure="fig5_3"), category="Figures", labels={"figure": "5.3 failure counts"}),
     log:
-        "results/logs/figures/fig5_1_to_5_3.log",
+        f"results/logs/figures/{registry.SPATIAL_FIGURES_JOB}.log",
     benchmark:
-        "results/benchmarks/figures/fig5_1_to_5_3.tsv"
+        f"results/benchmarks/figures/{registry.SPATIAL_FIGURES_JOB}.tsv"
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("light")

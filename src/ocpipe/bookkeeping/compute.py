@@ -15,7 +15,7 @@ import polars as pl
 
 from ..config.experiments import features_store, frames_store, resolve
 from ..study.findings import BY_ID, SCOPES
-from ..study.registry import FIGURES, SPATIAL_FIGURES_TABLE
+from ..study.registry import FIGURES, SPATIAL_FIGURES_JOB, SPATIAL_FIGURES_TABLE
 from ..study.report import markdown
 from ..study.tables import write_csv
 from ..study.targets import experiments_of
@@ -105,7 +105,7 @@ def per_table(config: dict, totals: pl.DataFrame) -> pl.DataFrame:
     for table in config["tables"]:
         wanted = {("table", table)} | {b for e in experiments_of(config, [table]) for b in builds_of(config, e)}
         if table == SPATIAL_FIGURES_TABLE:  # figures 5.1-5.3 come with the main job's table
-            wanted |= {("table", "fig5_1_to_5_3")}
+            wanted |= {("table", SPATIAL_FIGURES_JOB)}
         # a target's findings (findings_main, _ablations, _stackcube) come with the first table they judge
         wanted |= {("table", scope) for scope, ids in SCOPES.items()
                    if scope != "findings" and ids and BY_ID[ids[0]].table == table}

@@ -128,5 +128,6 @@ def figures_in(scope: str) -> list[str]:
 
 # figures 5.1-5.3 draw Table 5.1's rows together (one rule): training curves, sweeps, stability runs, failures
 SPATIAL_FIGURES = ("fig5_1", "fig5_2", "fig5_3")
+SPATIAL_FIGURES_JOB = "fig5_1_to_5_3"  # the name its log and benchmark files go by
 SPATIAL_FIGURES_TABLE = "table5_1"
 SPATIAL_FIGURES_NEEDS = (TRAIN_LOG, SWEEP, STABILITY, FAILURES)
