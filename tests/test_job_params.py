@@ -124,9 +124,9 @@ def test_a_job_builds_the_same_environment_from_its_slice_as_from_the_whole_conf
     names = list(envs.CAMERA_SETS[cams])
     for approx in (J.frames_shard_job(c, cams), J.evaluation_job(c, policy),
                    {"camera_approx": J.training_camera_approx(c, policy)}):
-        # exact: the same numbers through the same arithmetic (NaN for the hand camera, which has no model)
         for got, want in zip(envs.approx_camera_matrices(approx, names, 64), envs.approx_camera_matrices(c, names, 64),
                              strict=True):
+            # exact: the same numbers through the same arithmetic (NaN for the hand camera, which has no model)
             np.testing.assert_array_equal(got, want)
 
 
