@@ -58,7 +58,7 @@ def features_encoders(w):
 
 def diagnostics_holdout(w):
     """The held-out episodes a features store's diagnostics score on (None: a store slots_ssl never trained on)."""
-    return job_params.diagnostics_holdout(config, f"{w.task}_{w.cams}_{w.res}")
+    return job_params.diagnostics_holdout(config, paths.FRAMES_NAME.format(task=w.task, cams=w.cams, res=w.res))
 
 
 def scene_params(w):

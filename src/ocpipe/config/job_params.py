@@ -37,6 +37,11 @@ def _without(section: dict, keys) -> dict:
     return {k: v for k, v in section.items() if k not in keys}
 
 
+def _pool_bounds(config: dict) -> dict:
+    """Of the evaluation pool only its bounds: what a job that draws seeds of its own must stay clear of."""
+    return _pick(config["evaluation"], ("seed_pool_start", "seed_pool_size"))
+
+
 def rendering_sim(config: dict) -> dict:
     """`sim` as a job that renders (frames, scenes, evaluation) reads it: all but the demo generator's step cap."""
     return _without(config["sim"], DEMO_ONLY_SIM_KEYS)
@@ -69,8 +74,8 @@ def evaluation_protocol(config: dict) -> dict:
 def demo_job(config: dict) -> dict:
     """A demo job (demos_shard, demos_import): the demos section and the simulator without what only the cameras
     draw (demo generation renders nothing); of the evaluation pool only its bounds, which demo seeds keep out of."""
-    pool = _pick(config["evaluation"], ("seed_pool_start", "seed_pool_size"))
-    return {"sim": _without(config["sim"], RENDER_ONLY_SIM_KEYS), "demos": config["demos"], "evaluation": pool}
+    return {"sim": _without(config["sim"], RENDER_ONLY_SIM_KEYS), "demos": config["demos"],
+            "evaluation": _pool_bounds(config)}
 
 
 def frames_shard_job(config: dict, camera_set: str) -> dict:
@@ -99,11 +104,10 @@ def scenes_job(config: dict, camera_set: str, encoder: str) -> dict:
     2d goal, so no camera_approx), the goal marker, the encoder's sections, the scenes section, and only the bounds
     of the demo seeds and evaluation pool it must stay clear of."""
     demos = _pick(config["demos"], ("seed_start", "num_demos", "attempts_per_demo"))
-    pool = _pick(config["evaluation"], ("seed_pool_start", "seed_pool_size"))
     return {"sim": rendering_sim(config), "cameras": cameras_of(config, camera_set)["cameras"],
             "encoders": encoders_of(config, encoder), "scenes": config["scenes"],
             "frames": {"goal_marker_visible": config["frames"]["goal_marker_visible"]}, "demos": demos,
-            "evaluation": pool}
+            "evaluation": _pool_bounds(config)}
 
 
 def evaluation_job(config: dict, policy: dict) -> dict:

@@ -64,6 +64,6 @@ def findings_inputs(config: dict, scope: str) -> list[str]:
 
 def image_stores(config: dict, table: str) -> list[str]:
     """The features stores of a table's rows that read images (not the privileged-state control), in row order."""
-    stores = [features_store(resolve(config, exp)) for label, exp in rows(config, table).items()
-              if label not in unavailable(config, table) and resolve(config, exp)["encoder"] != "state"]
-    return list(dict.fromkeys(stores))
+    skip = unavailable(config, table)
+    settings = [resolve(config, exp) for label, exp in rows(config, table).items() if label not in skip]
+    return list(dict.fromkeys(features_store(s) for s in settings if s["encoder"] != "state"))
