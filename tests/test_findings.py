@@ -127,6 +127,8 @@ def test_a_table_the_findings_cannot_read_is_refused_naming_the_finding(one_poli
     assert any(p.startswith("tables.table5_5: no row runs experiment 'head_slot_transformer', which finding 6")
                for p in problems), problems
     assert any(p.startswith("tables.table5_9: experiment 'goal2d' runs in two rows; finding 10") for p in problems)
+    del cfg["tables"]["table5_1"]  # the main target's figures read its rows, whatever else a profile runs
+    assert "tables.table5_1: missing; every profile needs it" in " ".join(findings.config_problems(cfg))
 
 
 def test_table_inputs_are_one_object_each_wherever_they_travel():

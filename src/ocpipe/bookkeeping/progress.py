@@ -9,7 +9,12 @@ finished jobs of that rule, times the rule's jobs still to run, summed and divid
 cores stay busy and that a rule's later jobs cost what its earlier ones did (a StackCube stability run costs more
 than a PickCube one). A rule with no finished job yet is priced from the recorded full run
 (`docs/results/rule_times.csv`, which `ocpipe record` writes) where that run had it, and the estimate gives that
-part apart, since another profile or machine costs otherwise; a rule in neither is counted, not guessed."""
+part apart, since another profile or machine costs otherwise; a rule in neither is counted, not guessed.
+
+Why the text log and not a logger plugin: the log is what every run writes, whatever its executor and whoever
+started it; a logger plugin writes only for runs started with `--logger`, so a run begun without it could not be
+read, and `.snakemake/metadata` holds finished outputs only, not the plan or the running jobs. The patterns below
+are tested on the log of a real run (tests/test_workflow.py, tests/test_cluster.py)."""
 
 from __future__ import annotations
 

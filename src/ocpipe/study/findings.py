@@ -18,7 +18,7 @@ from ..evaluation import taxonomy
 from ..stats import by_policy, pooled
 from . import claims, conditions, registry, tables
 from .inputs import BEST, FAILURES, STABILITY, SWEEP, TRAIN_SEEDS, TRAINING_TIME, Input
-from .registry import TABLES
+from .registry import SPATIAL_FIGURES_TABLE, TABLES
 from .tables import Row
 
 # the experiments the findings compare: a finding names rows by the experiment they run, so a table's row labels
@@ -216,6 +216,9 @@ def config_problems(config: dict) -> list[str]:
     table's variable would be reached around (conditions.barred)."""
     out = [f"tables.{name}: not a table of the study (ocpipe.study.registry defines {', '.join(TABLES)})"
            for name in config["tables"] if name not in TABLES]
+    if SPATIAL_FIGURES_TABLE not in config["tables"]:
+        out.append(f"tables.{SPATIAL_FIGURES_TABLE}: missing; every profile needs it, since the main target's "
+                   "figures and its diagnostics read its rows")
     for f in FINDINGS:
         if f.table not in config["tables"]:
             continue  # a target that reports the finding names the missing table (targets.rows)
