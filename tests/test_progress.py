@@ -104,3 +104,12 @@ def test_progress_without_a_run_says_so(tmp_path):
 
     with pytest.raises(FileNotFoundError, match="no Snakemake run log"):
         progress.lines(tmp_path)
+
+
+def test_a_log_without_its_cores_is_named(tmp_path):
+    log = tmp_path / "run.snakemake.log"
+    log.write_text(LOG)  # a log cut before Snakemake printed its cores
+    with pytest.raises(ValueError, match="no 'Provided cores' line"):
+        progress.provided_cores(log)
+    log.write_text("Building DAG of jobs...\nUsing shell: /usr/bin/bash\nProvided cores: 16\n" + LOG)
+    assert progress.provided_cores(log) == 16

@@ -460,6 +460,7 @@ def test_compute_table_charges_every_job_of_the_tiny_run(tiny_run, tmp_path):
     assert {"train", "sweep", "stability"} <= stages
     assert "other" not in set(table["kind"])  # no job the table cannot place
     assert "| table5_1 |" in out and "wall time" in out
+    assert "% of 2 cores" in out  # the tiny run's --cores, read from its log: the newest run there used 2 as well
 
 
 def test_the_run_log_reader_finds_every_job_of_the_tiny_run_and_its_benchmark(tiny_run):
@@ -469,6 +470,7 @@ def test_the_run_log_reader_finds_every_job_of_the_tiny_run_and_its_benchmark(ti
     run = progress.parse(sorted((tiny_run / ".snakemake" / "log").glob("*.snakemake.log"))[0])
     finished = [run.jobs[i] for i in run.finished]
     assert len(finished) == run.total == run.done == sum(run.planned.values())
+    assert progress.provided_cores(sorted((tiny_run / ".snakemake" / "log").glob("*.snakemake.log"))[0]) == 2
     logged = {job.benchmark for job in finished if job.benchmark}
     written = {str(p.relative_to(tiny_run)) for p in (tiny_run / "results" / "benchmarks").rglob("*.tsv")}
     assert logged == written  # every benchmark file belongs to a job the log started, and the reverse

@@ -28,6 +28,8 @@ def parser() -> argparse.ArgumentParser:
                    "not)")
     p = sub.add_parser("compute", help="where a results folder's time went: write and print its compute table")
     p.add_argument("results", nargs="?", default="results")
+    p.add_argument("--cores", type=int, default=None, help="the cores the run was given (snakemake --cores), for its "
+                   "utilisation; default: what the newest run log under the results' folder says")
     p.add_argument("--config", nargs="*", default=["config/config.yaml"], help=CONFIG_HELP)
     p = sub.add_parser("progress", help="where a workflow run stands (from a second terminal): jobs done, the running "
                        "jobs' progress bars, an estimate of the time left")
@@ -76,11 +78,12 @@ def config_docs(args) -> int:
 
 
 def compute(args) -> int:
-    from .bookkeeping import compute
+    from .bookkeeping import compute, progress
 
     out = Path(args.results, "tables")
+    cores = args.cores or progress.provided_cores(progress.newest_log(Path(args.results).resolve().parent))
     compute.write(validate.load(*args.config), Path(args.results, "benchmarks"), out / "compute.csv",
-                  out / "compute.md")
+                  out / "compute.md", cores)
     print((out / "compute.md").read_text())
     return 0
 

@@ -4,4 +4,4 @@ from ocpipe.util import runlog
 
 with runlog.to_file(snakemake.log[0]):
     print(compute.write(snakemake.params.cfg, snakemake.params.benchmarks, snakemake.output.csv,
-                        snakemake.output.md))
+                        snakemake.output.md, snakemake.params.cores))

@@ -4,7 +4,9 @@ Every job is charged to what it built: an experiment (training, sweep, stability
 frames, features, scenes, an encoder's training) or a table (its own table, figure and findings jobs). Tables
 then add up in config order: each is charged what it builds first, so the per-table totals sum to the run.
 Core-minutes are the CPU time Snakemake measured for the job's process tree; job-minutes its wall time. The run's
-wall time spans the first job's start (a file's modification time less its seconds) to the last job's end."""
+wall time spans the first job's start (a file's modification time less its seconds) to the last job's end, and its
+utilisation is core-minutes / (cores x wall time): the share of the cores the run kept busy (a results folder built
+by several runs counts the pauses between them as idle)."""
 
 from __future__ import annotations
 
@@ -138,7 +140,13 @@ def wall_minutes(jobs: pl.DataFrame) -> float:
     return round((jobs["end"].max() - start) / 60, 1)
 
 
-def write(config: dict, bench_dir, csv_path, md_path) -> pl.DataFrame:
+def utilisation(jobs: pl.DataFrame, cores: int) -> float:
+    """Core-minutes / (cores x wall minutes): the share of ``cores`` the run's jobs kept busy, 0-1."""
+    return jobs["cpu_seconds"].sum() / 60 / (cores * wall_minutes(jobs))
+
+
+def write(config: dict, bench_dir, csv_path, md_path, cores: int) -> pl.DataFrame:
+    """The compute table of the run whose benchmark files are under ``bench_dir``, run on ``cores`` cores."""
     jobs = read_jobs(bench_dir)
     by_stage = charged(jobs)
     totals = by_stage.group_by("kind", "what", maintain_order=True).agg(pl.col("job_min", "core_min").sum())
@@ -151,7 +159,8 @@ def write(config: dict, bench_dir, csv_path, md_path) -> pl.DataFrame:
              markdown(_minutes(tables), "Tables: what each adds, in config order (minutes)")]
     footer = (f"{len(jobs)} jobs, {jobs['cpu_seconds'].sum() / 60:.1f} core-minutes, "
               f"{jobs['seconds'].sum() / 60:.1f} job-minutes; wall time {wall} min (first job's start to last "
-              f"job's end, from {bench_dir}'s files). Profile {config.get('profile', '?')}.")
+              f"job's end, from {bench_dir}'s files); utilisation {100 * utilisation(jobs, cores):.0f} % of "
+              f"{cores} cores (core-minutes / (cores x wall time)). Profile {config.get('profile', '?')}.")
     text = "\n".join(parts) + f"\n{footer}\n"
     with atomic_path(md_path) as tmp:
         tmp.write_text(text)

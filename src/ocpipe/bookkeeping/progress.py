@@ -67,6 +67,14 @@ def newest_log(workdir) -> Path:
     return logs[-1]
 
 
+def provided_cores(log: Path) -> int:
+    """The cores a run was given (its log's "Provided cores: N")."""
+    found = re.search(r"^Provided cores: (\d+)$", log.read_text(errors="replace"), re.MULTILINE)
+    if not found:
+        raise ValueError(f"{log}: no 'Provided cores' line (pass --cores)")
+    return int(found[1])
+
+
 def _date(text: str) -> datetime | None:
     try:
         return datetime.strptime(text.strip(), "%a %b %d %H:%M:%S %Y")
