@@ -4,6 +4,9 @@ seconds per training epoch at the thesis' model width vs the default profile's.
     .venv/bin/python bench/bench_policy.py                       # on the default build's stores
     .venv/bin/python bench/bench_policy.py --synthetic 20000     # on a synthetic thesis-shaped store (7 x 256)
     .venv/bin/python bench/bench_policy.py --decoder --threads 1 # a training step: whole decoder vs last token only
+    .venv/bin/python bench/bench_policy.py --per-policy goal2d "goal2d:epochs=10,save_every=5,lr_schedule=cosine"
+        # CPU-seconds to train one policy end to end, per recipe, against the first, and against the floor: the same
+        # model's forward, backward and step on random tensors already in memory, for the recipe's steps
 
 Each loader runs in its own process so its peak RSS is its own."""
 
@@ -145,6 +148,83 @@ def time_decoder(policy, steps: int, threads: int, K: int = 7, D: int = 64) -> N
     print(f"  ratio whole / last token only: {a / b:.2f}x\n")
 
 
+def _train_worker(policy, stores, threads, camera_approx, queue):
+    from ocpipe.policy import training
+
+    with tempfile.TemporaryDirectory() as out:
+        t0 = time.process_time()
+        log = training.train(policy, 0, stores["features"], stores["frames"], Path(out) / "run", threads=threads,
+                             progress=False, scenes_path=stores.get("scenes"), camera_approx=camera_approx)
+        queue.put({"cpu": time.process_time() - t0, "epochs": len(log)})
+
+
+def _floor_worker(policy, steps, threads, K, D, queue):
+    """The model's forward, backward, clipping and AdamW step on random batches already in memory, timed over a
+    sample of steps and scaled to ``steps``."""
+    from ocpipe.policy.model import PROPRIO_DIMS, SequencePolicy, goal_dims
+    from ocpipe.policy.settings import PolicySettings
+
+    torch.set_num_threads(threads)
+    settings = PolicySettings.of(policy)
+    B, T, C = policy["batch_size"], policy["window"], len(policy["cameras"])
+    g = torch.Generator().manual_seed(0)
+    batch = (torch.randn(B, T, C, K, D, generator=g),
+             torch.randn(B, T, PROPRIO_DIMS[settings.network.proprio], generator=g),
+             torch.randn(B, T, goal_dims(settings), generator=g))
+    torch.manual_seed(0)
+    model = SequencePolicy(policy, K, D)
+    params = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.AdamW(params, lr=policy["lr"])
+    timed = min(steps, 200)
+    t0 = time.process_time()
+    for _ in range(timed):
+        loss = model(*batch).actions.square().mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(params, 1.0)
+        opt.step()
+    queue.put((time.process_time() - t0) / timed * steps)
+
+
+def _in_child(target, *args):
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    proc = ctx.Process(target=target, args=(*args, queue))
+    proc.start()
+    out = queue.get()
+    proc.join()
+    return out
+
+
+def per_policy(config, specs: list[str], threads: int) -> None:
+    """Train one policy end to end per recipe (each in a fresh process, on the default build's stores) and print
+    its CPU-seconds beside the first recipe's and beside the floor for that recipe's optimizer steps."""
+    from ocpipe import paths
+    from ocpipe.policy.settings import PolicySettings
+
+    print(f"{'recipe':<58}{'epochs':>7}{'steps':>8}{'CPU s':>9}{'x first':>9}{'floor s':>9}{'x floor':>9}"
+          f"  ({threads} thread{'s' * (threads > 1)})")
+    first = None
+    for spec in specs:
+        p = resolve_with_overrides(config, spec)
+        store = experiments.features_store(p)
+        stores = {"features": REPO / paths.features_store(store),
+                  "frames": REPO / paths.frames_store(experiments.frames_store(p))}
+        if p["readout_scenes"]:
+            stores["scenes"] = REPO / paths.named(paths.SCENES_STORE, store)
+        missing = [str(f) for f in stores.values() if not f.exists()]
+        if missing:
+            sys.exit(f"{', '.join(missing)} missing: build the default stores first (make main)")
+        d = data.load(p, stores["features"], stores["frames"], config["camera_approx"])
+        batches = len(d.windows(PolicySettings.of(p), d.train_frames, p["batch_size"], 0))
+        got = _in_child(_train_worker, p, stores, threads, config["camera_approx"])
+        floor = _in_child(_floor_worker, p, got["epochs"] * batches, threads, d.meta["K"], d.meta["D"])
+        first = first or got["cpu"]
+        print(f"{spec:<58}{got['epochs']:>7}{got['epochs'] * batches:>8}{got['cpu']:>9.0f}"
+              f"{got['cpu'] / first:>9.2f}{floor:>9.0f}{got['cpu'] / floor:>9.2f}")
+    print()
+
+
 def resolve_with_overrides(config, spec: str) -> dict:
     """'goal2d' or 'goal2d:dropout=0.0,window=20' -> that experiment's policy with the overrides (YAML values)."""
     import yaml
@@ -193,8 +273,14 @@ def main():
     ap.add_argument("--decoder", action="store_true", help="only time a training step with the whole decoder "
                     "against the last token only, for goal2d and --experiments (random batches, no store needed)")
     ap.add_argument("--decoder-steps", type=int, default=40)
+    ap.add_argument("--per-policy", nargs="+", metavar="RECIPE", help="only train one policy end to end per recipe "
+                    "(an experiment, with overrides as in --experiments; the first is the reference) and print CPU "
+                    "seconds, the ratio to the first and to the floor (the train rule's threads: --threads 1)")
     args = ap.parse_args()
     config = cfgmod.load(args.config)
+    if args.per_policy:
+        per_policy(config, args.per_policy, args.threads)
+        return
     policy = experiments.resolve(config, "goal2d")
     if args.decoder:
         for name in ["goal2d", *args.experiments]:

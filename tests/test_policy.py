@@ -357,9 +357,12 @@ def test_loader_yields_each_window_once_per_epoch_one_chunk_at_a_time():
 
 def test_training_writes_checkpoints_and_log_and_a_killed_run_resumes_identically(tmp_path):
     features, frames = write_stores(tmp_path)
-    policy = policy_settings(loss_weighting="u_shaped")
+    # cosine: a resumed run must rejoin the schedule where the killed one left it, with no scheduler state saved
+    policy = policy_settings(loss_weighting="u_shaped", lr_schedule="cosine")
     full = train(policy, 0, features, frames, tmp_path / "full", progress=False)
     assert full["epoch"].to_list() == [1, 2, 3, 4]
+    lrs = full["lr"].to_list()  # each epoch's last step: the warm-up's peak, then falling
+    assert lrs[0] == policy["lr"] and lrs == sorted(lrs, reverse=True) and lrs[-1] < policy["lr"] / 10
     assert set(full.columns) == {"epoch", "loss", "loss_joints", "loss_gripper", "loss_aux", "loss_readout", "lr",
                                  "seconds"}
     assert full["loss"][-1] < full["loss"][0]
@@ -469,3 +472,16 @@ def test_goal_relative_adds_the_goal_minus_the_tcp_as_the_closed_loop_computes_i
     train(policy, 0, features, frames_path, tmp_path / "run", progress=False, camera_approx=approx)
     _, saved, _ = load_policy(tmp_path / "run" / "checkpoints" / f"epoch_{policy.training.epochs:04d}.pt")
     assert saved.goal.relative == "tcp"
+
+
+def test_the_cosine_schedule_warms_up_over_one_epoch_then_decays_towards_zero():
+    from ocpipe.policy.training import learning_rate
+
+    tr = PolicySettings.of(policy_settings(epochs=5, lr_schedule="cosine")).training
+    steps = [learning_rate(tr, s, 10) for s in range(50)]
+    # exact: (s + 1) / 10 of lr, the same product the code forms
+    assert steps[:10] == [tr.lr * (s + 1) / 10 for s in range(10)]
+    assert steps[10] == tr.lr  # cos(0): the decay starts at the peak
+    assert all(a > b for a, b in zip(steps[10:], steps[11:], strict=False)) and steps[-1] < tr.lr / 100
+    constant = PolicySettings.of(policy_settings(lr_schedule="constant")).training
+    assert {learning_rate(constant, s, 10) for s in range(50)} == {constant.lr}

@@ -16,8 +16,8 @@ from ..encoders.registry import ENCODERS  # the frozen encoders a features store
 # Levers that were measured, lost and were removed, with the value that means "off" (the study's) and the last
 # commit that had them (docs/journal.md has their figures). A checkpoint that names one at that value loads;
 # one trained with it on cannot be rebuilt by this code.
-RETIRED = {"slot_geometry": False, "proprio_noise": 0.0, "lr_schedule": "constant", "first_frame": False,
-           "readout_noise": 0.0, "readout_tcp_relative": False}
+RETIRED = {"slot_geometry": False, "proprio_noise": 0.0, "first_frame": False, "readout_noise": 0.0,
+           "readout_tcp_relative": False}
 RETIRED_AT = "19a73bd"
 
 
@@ -148,6 +148,10 @@ class Training:
     val_episodes: int = setting("val_episodes", integer(0),
                                 "last episodes of the store held out of training; their open-loop action error is "
                                 "logged every epoch (study: 0)", 0)
+    lr_schedule: str = setting("lr_schedule", enum("constant", "cosine"),
+                               "the learning rate over training: constant, or cosine: a linear warm-up over the "
+                               "first epoch, then a cosine decay towards 0 at the end of training (study: constant)",
+                               "constant")
 
 
 GROUPS = {"stores": Stores, "goal": Goal, "visual": Visual, "readout": Readout, "network": Network,

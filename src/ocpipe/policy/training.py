@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import os
 import shutil
 import time
@@ -121,6 +122,18 @@ def set_up(policy: PolicySettings, seed: int, features_path, frames_path, out_di
     return Run(policy, seed, d, model, opt, device, work, fingerprint, history, start)
 
 
+def learning_rate(training, step: int, steps_per_epoch: int) -> float:
+    """The learning rate of global ``step`` (0-based): a pure function of the step, so a resumed run follows the
+    same schedule without a scheduler's state."""
+    if training.lr_schedule == "constant":
+        return training.lr
+    if step < steps_per_epoch:  # linear warm-up over the first epoch
+        return training.lr * (step + 1) / steps_per_epoch
+    total = training.epochs * steps_per_epoch
+    done = (step - steps_per_epoch) / max(1, total - steps_per_epoch)
+    return training.lr * 0.5 * (1 + math.cos(math.pi * done))
+
+
 def _epoch_seed(seed: int, epoch: int) -> int:
     return int(np.random.SeedSequence([seed, epoch]).generate_state(1)[0])
 
@@ -136,7 +149,10 @@ def train_epoch(run: Run, epoch: int, progress: bool) -> dict:
     sums, n = dict.fromkeys(LOSSES, 0.0), 0
     bar = tqdm(loader.epoch(epoch), total=len(loader), disable=not progress, unit="batch",
                desc=f"{policy.name or 'policy'} epoch {epoch + 1}/{policy.training.epochs}")
-    for batch in bar:
+    for step, batch in enumerate(bar):
+        lr = learning_rate(policy.training, epoch * len(loader) + step, len(loader))
+        for group in run.opt.param_groups:
+            group["lr"] = lr
         batch = {k: v.to(run.device) for k, v in batch.items()}
         terms = batch_loss(model, policy, batch, epoch, readout_w)
         run.opt.zero_grad(set_to_none=True)
@@ -148,7 +164,7 @@ def train_epoch(run: Run, epoch: int, progress: bool) -> dict:
             sums[k] += float(terms[k].detach()) * b
         n += b
         bar.set_postfix(loss=f"{sums['loss'] / n:.4f}")
-    row = {"epoch": epoch + 1, **{k: v / n for k, v in sums.items()}, "lr": policy.training.lr,
+    row = {"epoch": epoch + 1, **{k: v / n for k, v in sums.items()}, "lr": lr,
            "seconds": time.perf_counter() - t0}
     if len(d.val_frames):
         row |= openloop_error(model, d, policy, run.device, run.seed)
