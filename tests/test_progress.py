@@ -79,6 +79,7 @@ def test_rules_with_no_finished_job_are_priced_from_the_recorded_run_and_said_ap
     record = work / progress.RULE_TIMES
     record.parent.mkdir(parents=True)
     # the recorded run priced train at 100 s (this run's own 360 s wins) and stability at 240 s; no table
+    # a record written before kinds: rules only
     record.write_text("rule,jobs,median_cpu_seconds,cpu_seconds\ntrain,2,100.0,200.0\nstability,4,240.0,960.0\n")
     out = progress.lines(work, cores=2, now=datetime(2026, 12, 2, 19, 23, 48))
     assert "left: 6 jobs; 1 of them about 3 min on 2 cores" in out[-3]
@@ -92,9 +93,11 @@ def test_rule_times_come_from_every_logged_job_with_a_benchmark_file(tmp_path):
     (work / "results" / "benchmarks" / "stability" / "a_run_0.tsv").write_text(BENCH.format(s=200.0, cpu=180.0))
     (work / "results" / "benchmarks" / "train" / "b.tsv").write_text("s\th:m:s\n")  # still being written
     table = progress.write_rule_times(work, work / "times.csv")
-    assert table.rows() == [("stability", 1, 180.0, 180.0), ("train", 1, 360.0, 360.0)]
-    assert progress.read_rule_times(work / "times.csv") == {"stability": 180.0, "train": 360.0}
-    assert progress.read_rule_times(work / "none.csv") == {}
+    assert table.rows() == [("stability", "stability exp=a", 1, 180.0, 180.0),
+                            ("train", "train exp=a", 1, 360.0, 360.0)]
+    assert progress.read_rule_times(work / "times.csv") == progress.Recorded(
+        {"stability": 180.0, "train": 360.0}, {"stability exp=a": 180.0, "train exp=a": 360.0})
+    assert progress.read_rule_times(work / "none.csv") == progress.Recorded()
     (work / ".snakemake" / "log" / "2026-12-02T182344.snakemake.log").write_text("Building DAG of jobs...\n")
     with pytest.raises(FileNotFoundError, match="no run log names a job"):
         progress.write_rule_times(work, work / "times.csv")
@@ -113,3 +116,107 @@ def test_a_log_without_its_cores_is_named(tmp_path):
         progress.provided_cores(log)
     log.write_text("Building DAG of jobs...\nUsing shell: /usr/bin/bash\nProvided cores: 16\n" + LOG)
     assert progress.provided_cores(log) == 16
+
+
+def test_a_jobs_kind_is_its_rule_and_wildcards_less_replicate_shard_run_and_checkpoint():
+    kind = lambda rule, wildcards: progress.Job(rule, 1, None, wildcards).kind  # noqa: E731
+    assert kind("stability", "exp=goal2d@3, run=0") == "stability exp=goal2d"
+    assert kind("sweep", "exp=goal2d@3, epoch=16") == "sweep exp=goal2d"
+    assert kind("frames_shard", "task=PickCube-v1, cams=dual, res=128, shard=1") == \
+        "frames_shard task=PickCube-v1, cams=dual, res=128"
+    assert kind("lever_eval", "lever=goal2d_goal_relative@2") == "lever_eval lever=goal2d_goal_relative"
+    assert kind("table", "") == "table"
+
+
+FINISHED_LOG = """Building DAG of jobs...
+Job stats:
+job      count
+-----  -------
+train        4
+total        4
+
+[Wed Dec  2 18:00:00 2026]
+localrule train:
+    jobid: 1
+    benchmark: results/benchmarks/train/ctl@0.tsv
+    wildcards: exp=ctl@0
+[Wed Dec  2 18:00:00 2026]
+localrule train:
+    jobid: 2
+    benchmark: results/benchmarks/train/a@0.tsv
+    wildcards: exp=a@0
+[Wed Dec  2 18:01:00 2026]
+Finished jobid: 1 (Rule: train)
+1 of 4 steps (25%) done
+[Wed Dec  2 18:01:00 2026]
+localrule train:
+    jobid: 3
+    benchmark: results/benchmarks/train/a@1.tsv
+    wildcards: exp=a@1
+[Wed Dec  2 18:06:00 2026]
+Finished jobid: 2 (Rule: train)
+2 of 4 steps (50%) done
+[Wed Dec  2 18:06:00 2026]
+localrule train:
+    jobid: 4
+    benchmark: results/benchmarks/train/b@0.tsv
+    wildcards: exp=b@0
+[Wed Dec  2 18:07:00 2026]
+Finished jobid: 3 (Rule: train)
+3 of 4 steps (75%) done
+[Wed Dec  2 18:16:00 2026]
+Finished jobid: 4 (Rule: train)
+4 of 4 steps (100%) done
+"""
+
+
+def test_jobs_are_priced_by_their_kind_then_the_records_kind_then_their_rule(tmp_path):
+    bench = tmp_path / "results" / "benchmarks" / "train"
+    bench.mkdir(parents=True)
+    for name, cpu in (("ctl@0", 60.0), ("a@0", 300.0), ("a@1", 300.0), ("b@0", 600.0)):
+        (bench / f"{name}.tsv").write_text(BENCH.format(s=cpu, cpu=cpu))
+    log = tmp_path / "run.snakemake.log"
+    log.write_text(FINISHED_LOG)
+    run = progress.parse(log)
+    assert run.finished_at[4] == datetime(2026, 12, 2, 18, 16)
+    pending = [run.jobs[3], run.jobs[4]]  # a@1 and b@0, with ctl@0 and a@0 finished
+    done = {1: 60.0, 2: 300.0}
+    # a@1 at its kind's 300 s; b@0 has no kind here and no record: the rule's median of 60 and 300, 180 s
+    est = progress.estimate(run, tmp_path, 1, None, pending, done)
+    assert (est.seconds, est.by_kind, est.by_recorded_kind) == (300.0 + 180.0, 1, 0)
+    # a record that had b at 400 s and a at 150 s: this run is twice as slow (300 / 150), so b costs 800 s
+    record = progress.Recorded({"train": 200.0}, {"train exp=a": 150.0, "train exp=b": 400.0})
+    est = progress.estimate(run, tmp_path, 1, record, pending, done)
+    assert (est.speed, est.seconds, est.by_kind, est.by_recorded_kind) == (2.0, 300.0 + 800.0, 1, 1)
+    # on 2 cores, the same work in half the time
+    assert progress.estimate(run, tmp_path, 2, record, pending, done).seconds == (300.0 + 800.0) / 2
+
+
+def test_replay_sets_each_estimate_beside_the_time_the_run_really_went_on(tmp_path):
+    bench = tmp_path / "results" / "benchmarks" / "train"
+    bench.mkdir(parents=True)
+    for name, cpu in (("ctl@0", 60.0), ("a@0", 300.0), ("a@1", 300.0), ("b@0", 600.0)):
+        (bench / f"{name}.tsv").write_text(BENCH.format(s=cpu, cpu=cpu))
+    log = tmp_path / "run.snakemake.log"
+    log.write_text(FINISHED_LOG)
+    t = progress.replay(progress.parse(log), tmp_path, 1, shares=(0.25, 0.5))
+    # at 1 of 4 jobs (18:01): a@0, a@1, b@0 left, each at the control's 60 s by rule and kind alike; 15 min to go
+    # at 2 of 4 (18:06): a@1 at a's 300 s by kind (b at the rule's median, 180 s), 180 s each by rule; 10 min left
+    assert t.rows() == [(0.25, 1, 3.0, 3.0, 15.0, 0), (0.5, 2, 8.0, 6.0, 10.0, 0)]
+    log.write_text(FINISHED_LOG.rsplit("[Wed Dec  2 18:16:00 2026]", 1)[0])  # b@0 still running
+    with pytest.raises(ValueError, match="not a finished run"):
+        progress.replay(progress.parse(log), tmp_path, 1)
+
+
+def test_the_jobs_to_come_are_listed_by_a_dry_run_of_the_runs_own_command(tmp_path):
+    fake = tmp_path / "snakemake"  # prints what `snakemake -n` prints, and the arguments it was given
+    fake.write_text("#!/bin/sh\necho \"args: $*\" > args.txt\ncat <<'EOF'\n" + LOG.split("[Wed Dec  2 18:30:00")[0]
+                    + "EOF\n")
+    fake.chmod(0o755)
+    run = progress.parse_text(f"Command: {fake} --cores 2 -- results/tables/table5_1.csv\n")
+    jobs = progress.plan(run, tmp_path)
+    assert [(j.rule, j.kind) for j in jobs] == [("train", "train exp=a"), ("stability", "stability exp=a")]
+    assert (tmp_path / "args.txt").read_text() == "args: -n --nolock --cores 2 -- results/tables/table5_1.csv\n"
+    fake.write_text("#!/bin/sh\nexit 1\n")  # a dry run that fails: no list, and the estimate falls back to rules
+    assert progress.plan(run, tmp_path) is None
+    assert progress.plan(progress.parse_text("no command line here\n"), tmp_path) is None

@@ -35,6 +35,11 @@ def parser() -> argparse.ArgumentParser:
                        "jobs' progress bars, an estimate of the time left")
     p.add_argument("workdir", nargs="?", default=".", help="the folder the run was started in")
     p.add_argument("--cores", type=int, default=2, help="the cores the run was given (snakemake --cores)")
+    p.add_argument("--no-dry-run", action="store_true", help="price the jobs left by rule, without the dry run "
+                   "that lists them so each is priced by its kind (about a minute on the whole study's graph)")
+    p.add_argument("--replay", action="store_true", help="check the pricing on the newest run log, a finished run: "
+                   "at 25, 50 and 75 %% of its jobs, the estimate from the jobs finished by then against the real "
+                   "time left")
     p = sub.add_parser("record", help="copy a whole run's tables, findings and compute table into docs/results/")
     p.add_argument("results", nargs="?", default="results")
     p.add_argument("--out", default="docs/results")
@@ -100,7 +105,13 @@ def record(args) -> int:
 def progress(args) -> int:
     from .bookkeeping import progress
 
-    print("\n".join(progress.lines(args.workdir, args.cores)))
+    if args.replay:
+        log = progress.newest_log(args.workdir)
+        print(f"{log}, on {args.cores} cores: minutes left, estimated and real")
+        recorded = progress.read_rule_times(Path(args.workdir, progress.RULE_TIMES))
+        print(progress.replay(progress.parse(log), args.workdir, args.cores, recorded))
+        return 0
+    print("\n".join(progress.lines(args.workdir, args.cores, dry_run=not args.no_dry_run)))
     return 0
 
 

@@ -4,12 +4,17 @@ Read from what a run leaves behind, so it works from a second terminal while the
 under `.snakemake/log/` (its plan, the jobs it started and finished), each running job's own log file (the last
 line of its progress bar) and the benchmark files of the finished jobs (their CPU time).
 
-The time left is an estimate, and says what it rests on: for each rule, the median CPU time of this run's
-finished jobs of that rule, times the rule's jobs still to run, summed and divided by the cores. It assumes the
-cores stay busy and that a rule's later jobs cost what its earlier ones did (a StackCube stability run costs more
-than a PickCube one). A rule with no finished job yet is priced from the recorded full run
-(`docs/results/rule_times.csv`, which `ocpipe record` writes) where that run had it, and the estimate gives that
-part apart, since another profile or machine costs otherwise; a rule in neither is counted, not guessed.
+The time left is an estimate, and says what it rests on. A job is priced by what its cost scales with: its
+rule and its kind, the rule's wildcards less the replicate, shard, run and checkpoint, which cost alike (a kind
+names the experiment, so its task, window and epochs, and the rule fixes its episodes). A job whose kind has
+finished jobs in this run costs their median CPU time; one whose kind has none yet (the first StackCube
+training) costs its rule's median; the sum is divided by the cores, as if they stay busy. Which jobs are still
+to come is read from a dry run of the run's own command (`--nolock -n`); where that fails, only each rule's count
+is known, and every such job costs its rule's median. A rule with no finished job yet is priced from the recorded
+full run (`docs/results/rule_times.csv`, which `ocpipe record` writes) where that run had it, and the estimate
+gives that part apart, since another profile or machine costs otherwise; a rule in neither is counted, not
+guessed. `ocpipe progress --replay` checks the pricing on a finished run's log: at a quarter, half and three
+quarters of its jobs, the estimate from the jobs finished by then against the time the run really took.
 
 Why the text log and not a logger plugin: the log is what every run writes, whatever its executor and whoever
 started it; a logger plugin writes only for runs started with `--logger`, so a run begun without it could not be
@@ -19,7 +24,9 @@ are tested on the log of a real run (tests/test_workflow.py, tests/test_cluster.
 from __future__ import annotations
 
 import re
+import shlex
 import statistics
+import subprocess
 from collections import Counter
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -32,29 +39,40 @@ from .compute import benchmark_times
 
 JOB_START = re.compile(r"^\[(?P<date>[^\]]+)\]\n(?:local)?rule (?P<rule>\w+):\n(?P<body>(?:[ \t]+.*\n?)*)",
                        re.MULTILINE)
-FINISHED = re.compile(r"^Finished jobid: (?P<id>\d+) \(Rule: (?P<rule>\w+)\)", re.MULTILINE)
+FINISHED = re.compile(r"^(?:\[(?P<date>[^\]]+)\]\n)?Finished jobid: (?P<id>\d+) \(Rule: (?P<rule>\w+)\)",
+                      re.MULTILINE)
 STEPS = re.compile(r"^(?P<done>\d+) of (?P<total>\d+) steps \(\d+%\) done", re.MULTILINE)
 FIELD = re.compile(r"^\s+(?P<key>\w+): (?P<value>.*)$", re.MULTILINE)
 RULE_TIMES = Path("docs", "results", "rule_times.csv")  # a recorded run's per-rule CPU time, under the workdir
+# wildcards that tell apart jobs of one cost: a policy's replicate (@k), a store's shard, a stability run, a swept
+# checkpoint
+ALIKE = re.compile(r"@\d+|,? ?\b(?:shard|run|epoch)=[^,]*")
 
 
 @dataclass
 class Job:
     rule: str
     jobid: int
-    started: datetime
+    started: datetime | None
     wildcards: str = ""
     log: str | None = None
     benchmark: str | None = None
 
+    @property
+    def kind(self) -> str:
+        """The rule and what the job's cost scales with (its wildcards less replicate, shard, run, checkpoint)."""
+        return f"{self.rule} {ALIKE.sub('', self.wildcards).strip(', ')}".strip()
+
 
 @dataclass
 class Run:
-    log: Path
+    log: Path | None
     started: datetime | None
     planned: dict[str, int]  # rule -> jobs in the plan
     jobs: dict[int, Job] = field(default_factory=dict)
     finished: set[int] = field(default_factory=set)
+    finished_at: dict[int, datetime] = field(default_factory=dict)
+    command: str | None = None  # the command line that started the run
     done: int = 0
     total: int = 0
 
@@ -83,7 +101,13 @@ def _date(text: str) -> datetime | None:
 
 
 def parse(log: Path) -> Run:
-    text = log.read_text(errors="replace")
+    run = parse_text(log.read_text(errors="replace"))
+    run.log = log
+    return run
+
+
+def parse_text(text: str, log: Path | None = None) -> Run:
+    """A run log's (or a dry run's) text -> its plan, jobs and progress."""
     planned = {}
     stats = re.search(r"^Job stats:\njob\s+count\n-+\s+-+\n(?P<rows>(?:\S+\s+\d+\n)+)", text, re.MULTILINE)
     if stats:
@@ -100,7 +124,12 @@ def parse(log: Path) -> Run:
         job = Job(m["rule"], int(fields["jobid"]), _date(m["date"]), fields.get("wildcards", ""),
                   fields.get("log"), fields.get("benchmark"))
         run.jobs[job.jobid] = job
-    run.finished = {int(m["id"]) for m in FINISHED.finditer(text)}
+    for m in FINISHED.finditer(text):
+        run.finished.add(int(m["id"]))
+        if m["date"] and _date(m["date"]):
+            run.finished_at[int(m["id"])] = _date(m["date"])
+    command = re.search(r"^\s*Command: (?P<cmd>.+)$", text, re.MULTILINE)
+    run.command = command["cmd"].strip() if command else None
     steps = list(STEPS.finditer(text))
     if steps:
         run.done, run.total = int(steps[-1]["done"]), int(steps[-1]["total"])
@@ -126,73 +155,159 @@ def cpu_seconds(benchmark: Path) -> float | None:
         return None
 
 
-def cpu_history(run: Run, workdir) -> dict[str, list[float]]:
-    """rule -> CPU seconds of each of the run's finished jobs whose benchmark file is whole."""
-    history: dict[str, list[float]] = {}
-    for job in (run.jobs[i] for i in sorted(run.finished) if i in run.jobs):
-        cpu = cpu_seconds(Path(workdir, job.benchmark)) if job.benchmark else None
+def finished_cpu(run: Run, workdir) -> dict[int, float]:
+    """jobid -> CPU seconds of each of the run's finished jobs whose benchmark file is whole."""
+    out = {}
+    for i in sorted(run.finished):
+        job = run.jobs.get(i)
+        cpu = cpu_seconds(Path(workdir, job.benchmark)) if job and job.benchmark else None
         if cpu is not None:
-            history.setdefault(job.rule, []).append(cpu)
-    return history
+            out[i] = cpu
+    return out
+
+
+def _medians(run: Run, cpu: dict[int, float], key) -> dict[str, float]:
+    groups: dict[str, list[float]] = {}
+    for i, seconds in cpu.items():
+        groups.setdefault(key(run.jobs[i]), []).append(seconds)
+    return {k: statistics.median(v) for k, v in groups.items()}
 
 
 def write_rule_times(workdir, path) -> pl.DataFrame:
-    """Every job of ``workdir``'s results with a benchmark file, whichever run made it, per rule: jobs, median and
-    total CPU seconds, to ``path`` (CSV). The rule of a benchmark file is read from the run logs that started it."""
-    rule_of = {}
+    """Every job of ``workdir``'s results with a benchmark file, whichever run made it, per rule and kind: jobs,
+    median and total CPU seconds, to ``path`` (CSV). The rule and kind of a benchmark file are read from the run
+    logs that started it."""
+    job_of = {}
     for log in sorted(Path(workdir, ".snakemake", "log").glob("*.snakemake.log")):
-        rule_of |= {Path(workdir, j.benchmark).resolve(): j.rule for j in parse(log).jobs.values() if j.benchmark}
-    history: dict[str, list[float]] = {}
-    for bench, rule in rule_of.items():
+        job_of |= {Path(workdir, j.benchmark).resolve(): j for j in parse(log).jobs.values() if j.benchmark}
+    history: dict[tuple[str, str], list[float]] = {}
+    for bench, job in job_of.items():
         cpu = cpu_seconds(bench)
         if cpu is not None:
-            history.setdefault(rule, []).append(cpu)
+            history.setdefault((job.rule, job.kind), []).append(cpu)
     if not history:
         raise FileNotFoundError(f"{workdir}: no run log names a job whose benchmark file is there to record")
-    table = pl.DataFrame([{"rule": rule, "jobs": len(cpu), "median_cpu_seconds": round(statistics.median(cpu), 1),
-                           "cpu_seconds": round(sum(cpu), 1)} for rule, cpu in sorted(history.items())])
+    table = pl.DataFrame([{"rule": rule, "kind": kind, "jobs": len(cpu),
+                           "median_cpu_seconds": round(statistics.median(cpu), 1), "cpu_seconds": round(sum(cpu), 1)}
+                          for (rule, kind), cpu in sorted(history.items())])
     with atomic_path(path) as tmp:
         table.write_csv(tmp)
     return table
 
 
-def read_rule_times(path) -> dict[str, float]:
-    """A recorded run's rule -> median CPU seconds; empty where there is no record."""
+@dataclass
+class Recorded:
+    """A recorded run's prices: per rule (its jobs' mean CPU seconds) and per kind (their median)."""
+
+    rules: dict[str, float] = field(default_factory=dict)
+    kinds: dict[str, float] = field(default_factory=dict)
+
+
+def read_rule_times(path) -> Recorded:
+    """A recorded run's prices; empty where there is no record (a record written before kinds has rules only)."""
     if not Path(path).is_file():
-        return {}
-    return dict(pl.read_csv(path).select("rule", "median_cpu_seconds").iter_rows())
+        return Recorded()
+    t = pl.read_csv(path)
+    if "kind" not in t.columns:
+        return Recorded(dict(t.select("rule", "median_cpu_seconds").iter_rows()))
+    rules = t.group_by("rule").agg((pl.col("cpu_seconds").sum() / pl.col("jobs").sum()).alias("mean"))
+    return Recorded(dict(rules.iter_rows()), dict(t.select("kind", "median_cpu_seconds").iter_rows()))
 
 
 @dataclass
 class Estimate:
-    """Seconds left on the given cores if they stay busy, priced from this run's finished jobs and, for rules
-    with none yet, from a recorded run; jobs of rules in neither are counted by rule."""
+    """Seconds left on the given cores if they stay busy. Jobs are priced, in this order of preference, from this
+    run's finished jobs of their kind, from the recorded run's jobs of their kind (scaled by how much faster or
+    slower this run's kinds have been than the record's), from this run's finished jobs of their rule; those left
+    from the recorded run's jobs of their rule (given apart); jobs priced by none are counted by rule."""
 
     seconds: float = 0.0
     jobs: int = 0
+    by_kind: int = 0  # of ``jobs``, those priced from this run's jobs of their own kind
+    by_recorded_kind: int = 0  # and those from the record's jobs of their kind
+    speed: float = 1.0  # this run's CPU seconds / the record's, median over the kinds both have
     recorded_seconds: float = 0.0
     recorded_jobs: int = 0
     unknown: dict[str, int] = field(default_factory=dict)
 
 
-def estimate(run: Run, workdir, cores: int, recorded: dict[str, float] | None = None) -> Estimate:
-    history = cpu_history(run, workdir)
-    finished_by_rule = Counter(run.jobs[i].rule for i in run.finished if i in run.jobs)
-    recorded = recorded or {}
+def estimate(run: Run, workdir, cores: int, recorded: Recorded | None = None, pending: list[Job] | None = None,
+             cpu: dict[int, float] | None = None, by_kind: bool = True) -> Estimate:
+    """The time ``pending`` jobs still need (default: each rule's planned jobs less its finished ones, kinds
+    unknown), priced from ``cpu`` (default: every finished job's) and the ``recorded`` run."""
+    cpu = finished_cpu(run, workdir) if cpu is None else cpu
+    recorded = recorded or Recorded()
+    kinds = _medians(run, cpu, lambda j: j.kind) if by_kind else {}
+    rules = _medians(run, cpu, lambda j: j.rule)
     est = Estimate()
-    for rule, count in run.planned.items():
-        left = count - finished_by_rule.get(rule, 0)
-        if left <= 0:
+    both = [kinds[k] / recorded.kinds[k] for k in kinds.keys() & recorded.kinds.keys() if recorded.kinds[k] > 0]
+    est.speed = statistics.median(both) if both else 1.0
+    if pending is None:
+        finished_by_rule = Counter(run.jobs[i].rule for i in run.finished if i in run.jobs)
+        pending = [Job(rule, -1, None) for rule, count in run.planned.items()
+                   for _ in range(count - finished_by_rule.get(rule, 0))]
+        kinds_known = False
+    else:
+        kinds_known = by_kind
+    for job in pending:
+        if kinds_known and job.kind in kinds:
+            price, est.by_kind = kinds[job.kind], est.by_kind + 1
+        elif kinds_known and job.kind in recorded.kinds:
+            price, est.by_recorded_kind = recorded.kinds[job.kind] * est.speed, est.by_recorded_kind + 1
+        elif job.rule in rules:
+            price = rules[job.rule]
+        elif job.rule in recorded.rules:
+            est.recorded_seconds += recorded.rules[job.rule] / max(cores, 1)
+            est.recorded_jobs += 1
             continue
-        if rule in history:
-            est.seconds += statistics.median(history[rule]) * left / max(cores, 1)
-            est.jobs += left
-        elif rule in recorded:
-            est.recorded_seconds += recorded[rule] * left / max(cores, 1)
-            est.recorded_jobs += left
         else:
-            est.unknown[rule] = left
+            est.unknown[job.rule] = est.unknown.get(job.rule, 0) + 1
+            continue
+        est.seconds += price / max(cores, 1)
+        est.jobs += 1
     return est
+
+
+def plan(run: Run, workdir, timeout: float = 300) -> list[Job] | None:
+    """The jobs a dry run of the run's own command would still run (running ones included), or None where the
+    command is unknown or the dry run fails."""
+    if not run.command:
+        return None
+    argv = shlex.split(run.command)
+    try:
+        dry = subprocess.run([argv[0], "-n", "--nolock", *argv[1:]], cwd=workdir, capture_output=True, text=True,
+                             timeout=timeout)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    if dry.returncode != 0:
+        return None
+    return list(parse_text(dry.stdout + dry.stderr).jobs.values())  # Snakemake lists the jobs on stderr
+
+
+def replay(run: Run, workdir, cores: int, recorded: Recorded | None = None, shares=(0.25, 0.5, 0.75)
+           ) -> pl.DataFrame:
+    """On a finished run's log: at each share of its jobs finished, the time left as estimated from the jobs
+    finished by then (by kind, with ``recorded`` another run's record; and by rule alone, as before kinds)
+    against the time the run really went on. Jobs running at that moment are priced whole, so both estimates
+    lean high by up to one job per core."""
+    order = sorted(run.finished_at.items(), key=lambda kv: kv[1])
+    if not order or run.jobs.keys() - run.finished:
+        raise ValueError(f"{run.log}: not a finished run (replay needs every job started and finished)")
+    cpu = finished_cpu(run, workdir)
+    end = order[-1][1]
+    rows = []
+    for share in shares:
+        n = max(1, round(share * len(order)))
+        done = {i for i, _ in order[:n]}
+        pending = [j for i, j in run.jobs.items() if i not in done]
+        known = {i: c for i, c in cpu.items() if i in done}
+        kind, rule = (estimate(run, workdir, cores, recorded if b else None, pending, known, by_kind=b)
+                      for b in (True, False))
+        rows.append({"share": share, "jobs_done": n, "estimate_by_kind_min": round(kind.seconds / 60, 1),
+                     "estimate_by_rule_min": round(rule.seconds / 60, 1),
+                     "actual_min": round((end - order[n - 1][1]).total_seconds() / 60, 1),
+                     "jobs_unpriced": sum(kind.unknown.values())})
+    return pl.DataFrame(rows)
 
 
 def _minutes(seconds: float) -> str:
@@ -200,7 +315,9 @@ def _minutes(seconds: float) -> str:
     return f"{m // 60} h {m % 60:02d} min" if m >= 60 else f"{m} min"
 
 
-def lines(workdir=".", cores: int = 2, now: datetime | None = None) -> list[str]:
+def lines(workdir=".", cores: int = 2, now: datetime | None = None, dry_run: bool = True) -> list[str]:
+    """``dry_run``: list the jobs still to come with a dry run of the run's command, so each is priced by its
+    kind; without it (or where it fails) they are priced by rule."""
     run = parse(newest_log(workdir))
     now = now or datetime.now()
     out = [f"{run.log}: {run.done} of {run.total} jobs done"
@@ -212,10 +329,14 @@ def lines(workdir=".", cores: int = 2, now: datetime | None = None) -> list[str]
         bar = last_bar(Path(workdir, job.log)) if job.log else ""
         what = f"{job.rule} {job.wildcards}".strip()
         out.append(f"  {what}" + (f"  |  {bar}" if bar else ""))
-    est = estimate(run, workdir, cores, read_rule_times(Path(workdir, RULE_TIMES)))
+    pending = plan(run, workdir) if dry_run and run.done < run.total else None
+    est = estimate(run, workdir, cores, read_rule_times(Path(workdir, RULE_TIMES)), pending)
+    how = (f"{est.by_kind} priced by the median CPU time of this run's finished jobs of their kind, "
+           f"{est.by_recorded_kind} by their kind's in the recorded run x {est.speed:.2f} (this run's speed "
+           "against it), the rest by their rule's" if pending is not None else
+           "for each rule, the median CPU time of this run's finished jobs x its jobs left")
     out.append(f"left: {run.total - run.done} jobs; {est.jobs} of them about {_minutes(est.seconds)} on {cores} "
-               "cores (for each rule, the median CPU time of this run's finished jobs x its jobs left; cores kept "
-               "busy)")
+               f"cores ({how}; cores kept busy)")
     if est.recorded_jobs:
         out.append(f"  {est.recorded_jobs} more, of rules with no finished job yet, about "
                    f"{_minutes(est.recorded_seconds)} as the recorded run ({RULE_TIMES}) priced their rules (its "

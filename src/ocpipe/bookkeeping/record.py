@@ -1,6 +1,7 @@
 """The record of a full run: its tables, findings and compute table copied as the pipeline wrote them into a folder
-under version control (docs/results/), with the commit and command that made them, and each rule's CPU time
-(rule_times.csv), by which `ocpipe progress` prices a later run's jobs before any of their rule has finished."""
+under version control (docs/results/), with the commit and command that made them, and the CPU time of each rule
+and kind of job (rule_times.csv), by which `ocpipe progress` prices a later run's jobs before any of their kind
+has finished."""
 
 from __future__ import annotations
 
@@ -78,8 +79,9 @@ def write(config: dict, results, out_dir, command: str, commit: str | None = Non
             "Every file here is the pipeline's own output, copied by `ocpipe record` (never edited): the study's "
             "tables (`table5_*`), the findings this run reproduces (`findings`) and where its time went "
             "(`compute`).\n"
-            + ("`rule_times.csv` is each rule's jobs and CPU seconds in that run, from its benchmark files; "
-               "`ocpipe progress` prices a later run's jobs by it until their own rule has a finished job.\n"
+            + ("`rule_times.csv` is the jobs and CPU seconds of each rule and kind of job (the rule's wildcards less "
+               "replicate, shard, run and checkpoint) in that run, from its benchmark files; `ocpipe progress` "
+               "prices a later run's jobs by it until their own kind has a finished job.\n"
                if rule_times else ""))
     with atomic_path(out / "README.md") as tmp:
         tmp.write_text(note)
