@@ -8,12 +8,13 @@ The time left is an estimate, and says what it rests on. A job is priced by what
 rule and its kind, the rule's wildcards less the replicate, shard, run and checkpoint, which cost alike (a kind
 names the experiment, so its task, window and epochs, and the rule fixes its episodes). A job whose kind has
 finished jobs in this run costs their median CPU time; one whose kind has none yet (the first StackCube
-training) costs its rule's median; the sum is divided by the cores, as if they stay busy. Which jobs are still
-to come is read from a dry run of the run's own command (`--nolock -n`); where that fails, only each rule's count
-is known, and every such job costs its rule's median. A rule with no finished job yet is priced from the recorded
-full run (`docs/results/rule_times.csv`, which `ocpipe record` writes) where that run had it, and the estimate
-gives that part apart, since another profile or machine costs otherwise; a rule in neither is counted, not
-guessed. `ocpipe progress --replay` checks the pricing on a finished run's log: at a quarter, half and three
+training) costs what the recorded full run (`docs/results/rule_times.csv`, which `ocpipe record` writes) spent
+on that kind, scaled by how fast this run's kinds have gone against the record's, else its rule's median in this
+run; the sum is divided by the cores, as if they stay busy. Which jobs are still to come is read from a dry run
+of the run's own command (`--nolock -n`); where that fails, only each rule's count is known, and every such job
+costs its rule's median. A rule with no finished job yet is priced from the record's jobs of that rule, and the
+estimate gives that part apart, since another profile or machine costs otherwise; a rule in neither is counted,
+not guessed. `ocpipe progress --replay` checks the pricing on a finished run's log: at a quarter, half and three
 quarters of its jobs, the estimate from the jobs finished by then against the time the run really took.
 
 Why the text log and not a logger plugin: the log is what every run writes, whatever its executor and whoever
@@ -101,9 +102,7 @@ def _date(text: str) -> datetime | None:
 
 
 def parse(log: Path) -> Run:
-    run = parse_text(log.read_text(errors="replace"))
-    run.log = log
-    return run
+    return parse_text(log.read_text(errors="replace"), log)
 
 
 def parse_text(text: str, log: Path | None = None) -> Run:
@@ -287,7 +286,7 @@ def plan(run: Run, workdir, timeout: float = 300) -> list[Job] | None:
 def replay(run: Run, workdir, cores: int, recorded: Recorded | None = None, shares=(0.25, 0.5, 0.75)
            ) -> pl.DataFrame:
     """On a finished run's log: at each share of its jobs finished, the time left as estimated from the jobs
-    finished by then (by kind, with ``recorded`` another run's record; and by rule alone, as before kinds)
+    finished by then and ``recorded`` (another run's record), by kind and by rule alone (as before kinds),
     against the time the run really went on. Jobs running at that moment are priced whole, so both estimates
     lean high by up to one job per core."""
     order = sorted(run.finished_at.items(), key=lambda kv: kv[1])
@@ -301,10 +300,10 @@ def replay(run: Run, workdir, cores: int, recorded: Recorded | None = None, shar
         done = {i for i, _ in order[:n]}
         pending = [j for i, j in run.jobs.items() if i not in done]
         known = {i: c for i, c in cpu.items() if i in done}
-        kind, rule = (estimate(run, workdir, cores, recorded if b else None, pending, known, by_kind=b)
-                      for b in (True, False))
-        rows.append({"share": share, "jobs_done": n, "estimate_by_kind_min": round(kind.seconds / 60, 1),
-                     "estimate_by_rule_min": round(rule.seconds / 60, 1),
+        kind, rule = (estimate(run, workdir, cores, recorded, pending, known, by_kind=b) for b in (True, False))
+        rows.append({"share": share, "jobs_done": n,
+                     "estimate_by_kind_min": round((kind.seconds + kind.recorded_seconds) / 60, 1),
+                     "estimate_by_rule_min": round((rule.seconds + rule.recorded_seconds) / 60, 1),
                      "actual_min": round((end - order[n - 1][1]).total_seconds() / 60, 1),
                      "jobs_unpriced": sum(kind.unknown.values())})
     return pl.DataFrame(rows)
