@@ -170,13 +170,19 @@ Finished jobid: 4 (Rule: train)
 """
 
 
-def test_jobs_are_priced_by_their_kind_then_the_records_kind_then_their_rule(tmp_path):
+def _finished_run(tmp_path):
+    """FINISHED_LOG's run in ``tmp_path``: its log and the benchmark files of its four trainings."""
     bench = tmp_path / "results" / "benchmarks" / "train"
     bench.mkdir(parents=True)
     for name, cpu in (("ctl@0", 60.0), ("a@0", 300.0), ("a@1", 300.0), ("b@0", 600.0)):
         (bench / f"{name}.tsv").write_text(BENCH.format(s=cpu, cpu=cpu))
     log = tmp_path / "run.snakemake.log"
     log.write_text(FINISHED_LOG)
+    return log
+
+
+def test_jobs_are_priced_by_their_kind_then_the_records_kind_then_their_rule(tmp_path):
+    log = _finished_run(tmp_path)
     run = progress.parse(log)
     assert run.finished_at[4] == datetime(2026, 12, 2, 18, 16)
     pending = [run.jobs[3], run.jobs[4]]  # a@1 and b@0, with ctl@0 and a@0 finished
@@ -193,12 +199,7 @@ def test_jobs_are_priced_by_their_kind_then_the_records_kind_then_their_rule(tmp
 
 
 def test_replay_sets_each_estimate_beside_the_time_the_run_really_went_on(tmp_path):
-    bench = tmp_path / "results" / "benchmarks" / "train"
-    bench.mkdir(parents=True)
-    for name, cpu in (("ctl@0", 60.0), ("a@0", 300.0), ("a@1", 300.0), ("b@0", 600.0)):
-        (bench / f"{name}.tsv").write_text(BENCH.format(s=cpu, cpu=cpu))
-    log = tmp_path / "run.snakemake.log"
-    log.write_text(FINISHED_LOG)
+    log = _finished_run(tmp_path)
     t = progress.replay(progress.parse(log), tmp_path, 1, shares=(0.25, 0.5))
     # at 1 of 4 jobs (18:01): a@0, a@1, b@0 left, each at the control's 60 s by rule and kind alike; 15 min to go
     # at 2 of 4 (18:06): a@1 at a's 300 s by kind (b at the rule's median, 180 s), 180 s each by rule; 10 min left
