@@ -114,7 +114,8 @@ def test_record_copies_a_whole_runs_tables_and_refuses_part_of_one(default_confi
     _bench(tmp_path / "results" / "benchmarks", "train/goal2d.tsv", 300, 290, 1_000_000.0)
     record.write(default_config, tmp_path / "results", out, "time snakemake --cores 2 all", "abc123")
     # exact: one job's integer CPU seconds, its median and sum are that number
-    assert (out / "rule_times.csv").read_text() == "rule,jobs,median_cpu_seconds,cpu_seconds\ntrain,1,290.0,290.0\n"
+    assert (out / "rule_times.csv").read_text() == ("rule,kind,jobs,median_cpu_seconds,cpu_seconds\n"
+                                                    "train,train,1,290.0,290.0\n")  # a job without wildcards
     assert "rule_times.csv" in (out / "README.md").read_text()
     (tables / "table5_7.md").unlink()
     with pytest.raises(FileNotFoundError, match="table5_7.md"):

@@ -217,6 +217,7 @@ def test_the_jobs_to_come_are_listed_by_a_dry_run_of_the_runs_own_command(tmp_pa
     run = progress.parse_text(f"Command: {fake} --cores 2 -- results/tables/table5_1.csv\n")
     jobs = progress.plan(run, tmp_path)
     assert [(j.rule, j.kind) for j in jobs] == [("train", "train exp=a"), ("stability", "stability exp=a")]
+    # exact: the arguments the fake wrote back, as text
     assert (tmp_path / "args.txt").read_text() == "args: -n --nolock --cores 2 -- results/tables/table5_1.csv\n"
     fake.write_text("#!/bin/sh\nexit 1\n")  # a dry run that fails: no list, and the estimate falls back to rules
     assert progress.plan(run, tmp_path) is None
