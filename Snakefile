@@ -95,7 +95,6 @@ rule compute:
     params:
         cfg=TABLE_CFG,
         benchmarks="results/benchmarks",
-        cores=workflow.cores,  # the run's --cores: its utilisation is measured against them
     script:
         "workflow/scripts/compute.py"
 

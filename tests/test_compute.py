@@ -80,6 +80,8 @@ def test_write_names_the_run_and_an_empty_folder_is_an_error(default_config, ben
     assert "| goal2d |" in text and "wall time 33.3 min" in text
     # 43.2 core-minutes in 33.3 wall minutes (rounded as printed) on 2 cores: 43.2 / 66.6 = 64.9 %
     assert "utilisation 65 % of 2 cores" in text
+    compute.write(default_config, bench, tmp_path / "c.csv", tmp_path / "c.md", cores=None)  # a cluster run
+    assert "utilisation not known" in (tmp_path / "c.md").read_text()
     core = pl.read_csv(tmp_path / "c.csv")["core_min"]
     # derived: each row is a whole tenth (CPU seconds in multiples of 6) written to 4 decimals, so the CSV sum differs
     # from the total only by float64 round-off of a sum of len(core) terms of at most max(core) minutes

@@ -116,6 +116,7 @@ def test_a_log_without_its_cores_is_named(tmp_path):
         progress.provided_cores(log)
     log.write_text("Building DAG of jobs...\nUsing shell: /usr/bin/bash\nProvided cores: 16\n" + LOG)
     assert progress.provided_cores(log) == 16
+    assert progress.run_cores(tmp_path) is None  # no .snakemake/log here: not known, not an error
 
 
 def test_a_jobs_kind_is_its_rule_and_wildcards_less_replicate_shard_run_and_checkpoint():

@@ -86,7 +86,7 @@ def compute(args) -> int:
     from .bookkeeping import compute, progress
 
     out = Path(args.results, "tables")
-    cores = args.cores or progress.provided_cores(progress.newest_log(Path(args.results).resolve().parent))
+    cores = args.cores or progress.run_cores(Path(args.results).resolve().parent)
     compute.write(validate.load(*args.config), Path(args.results, "benchmarks"), out / "compute.csv",
                   out / "compute.md", cores)
     print((out / "compute.md").read_text())

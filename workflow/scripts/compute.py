@@ -1,7 +1,7 @@
 # rule compute: where the run's time went, from the rules' benchmark files
-from ocpipe.bookkeeping import compute
+from ocpipe.bookkeeping import compute, progress
 from ocpipe.util import runlog
 
 with runlog.to_file(snakemake.log[0]):
     print(compute.write(snakemake.params.cfg, snakemake.params.benchmarks, snakemake.output.csv,
-                        snakemake.output.md, snakemake.params.cores))
+                        snakemake.output.md, progress.run_cores(".")))

@@ -145,8 +145,9 @@ def utilisation(jobs: pl.DataFrame, cores: int) -> float:
     return jobs["cpu_seconds"].sum() / 60 / (cores * wall_minutes(jobs))
 
 
-def write(config: dict, bench_dir, csv_path, md_path, cores: int) -> pl.DataFrame:
-    """The compute table of the run whose benchmark files are under ``bench_dir``, run on ``cores`` cores."""
+def write(config: dict, bench_dir, csv_path, md_path, cores: int | None) -> pl.DataFrame:
+    """The compute table of the run whose benchmark files are under ``bench_dir``, run on ``cores`` cores (None:
+    not known, as on a cluster; then no utilisation)."""
     jobs = read_jobs(bench_dir)
     by_stage = charged(jobs)
     totals = by_stage.group_by("kind", "what", maintain_order=True).agg(pl.col("job_min", "core_min").sum())
@@ -159,8 +160,10 @@ def write(config: dict, bench_dir, csv_path, md_path, cores: int) -> pl.DataFram
              markdown(_minutes(tables), "Tables: what each adds, in config order (minutes)")]
     footer = (f"{len(jobs)} jobs, {jobs['cpu_seconds'].sum() / 60:.1f} core-minutes, "
               f"{jobs['seconds'].sum() / 60:.1f} job-minutes; wall time {wall} min (first job's start to last "
-              f"job's end, from {bench_dir}'s files); utilisation {100 * utilisation(jobs, cores):.0f} % of "
-              f"{cores} cores (core-minutes / (cores x wall time)). Profile {config.get('profile', '?')}.")
+              f"job's end, from {bench_dir}'s files); "
+              + (f"utilisation {100 * utilisation(jobs, cores):.0f} % of {cores} cores (core-minutes / (cores x "
+                 "wall time))" if cores else "utilisation not known (the run log names no core count)")
+              + f". Profile {config.get('profile', '?')}.")
     text = "\n".join(parts) + f"\n{footer}\n"
     with atomic_path(md_path) as tmp:
         tmp.write_text(text)

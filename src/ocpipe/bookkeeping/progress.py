@@ -94,6 +94,15 @@ def provided_cores(log: Path) -> int:
     return int(found[1])
 
 
+def run_cores(workdir) -> int | None:
+    """The cores the newest run in ``workdir`` was given; None where there is no log or it names none (a run on
+    a cluster executor gives no core count, and Snakemake's own `workflow.cores` raises there)."""
+    try:
+        return provided_cores(newest_log(workdir))
+    except (FileNotFoundError, ValueError):
+        return None
+
+
 def _date(text: str) -> datetime | None:
     try:
         return datetime.strptime(text.strip(), "%a %b %d %H:%M:%S %Y")
