@@ -204,7 +204,10 @@ def test_replay_sets_each_estimate_beside_the_time_the_run_really_went_on(tmp_pa
     t = progress.replay(progress.parse(log), tmp_path, 1, shares=(0.25, 0.5))
     # at 1 of 4 jobs (18:01): a@0, a@1, b@0 left, each at the control's 60 s by rule and kind alike; 15 min to go
     # at 2 of 4 (18:06): a@1 at a's 300 s by kind (b at the rule's median, 180 s), 180 s each by rule; 10 min left
-    assert t.rows() == [(0.25, 1, 3.0, 3.0, 15.0, 0), (0.5, 2, 8.0, 6.0, 10.0, 0)]
+    # one core, and a job running beside every finished one: utilisation 1 (capped), so no change
+    assert t.columns == ["share", "jobs_done", "estimate_by_rule_min", "estimate_by_kind_min", "utilisation_so_far",
+                         "estimate_by_kind_at_utilisation_min", "actual_min", "jobs_unpriced"]
+    assert t.rows() == [(0.25, 1, 3.0, 3.0, 1.0, 3.0, 15.0, 0), (0.5, 2, 6.0, 8.0, 1.0, 8.0, 10.0, 0)]
     log.write_text(FINISHED_LOG.rsplit("[Wed Dec  2 18:16:00 2026]", 1)[0])  # b@0 still running
     with pytest.raises(ValueError, match="not a finished run"):
         progress.replay(progress.parse(log), tmp_path, 1)
@@ -223,3 +226,16 @@ def test_the_jobs_to_come_are_listed_by_a_dry_run_of_the_runs_own_command(tmp_pa
     fake.write_text("#!/bin/sh\nexit 1\n")  # a dry run that fails: no list, and the estimate falls back to rules
     assert progress.plan(run, tmp_path) is None
     assert progress.plan(progress.parse_text("no command line here\n"), tmp_path) is None
+
+
+def test_utilisation_so_far_counts_finished_jobs_and_running_ones_at_the_finished_ones_pace(tmp_path):
+    run = progress.parse(_finished_run(tmp_path))
+    # at 18:06 on 2 cores: ctl@0 (60 s) and a@0 (300 s) finished, each CPU = wall; a@1 has run 300 s, b@0 0 s
+    times = {1: (60.0, 60.0), 2: (300.0, 300.0)}
+    seen = progress.Run(run.log, run.started, run.planned, run.jobs, {1, 2})
+    busy = progress.utilisation_so_far(seen, times, datetime(2026, 12, 2, 18, 6), cores=2)
+    assert busy == pytest.approx((60 + 300 + 300) / (2 * 360))  # derived: float division of whole seconds
+    # a finished job that used half its wall time puts the running ones at half pace too
+    half = progress.utilisation_so_far(seen, {1: (60.0, 30.0), 2: (300.0, 150.0)}, datetime(2026, 12, 2, 18, 6), 2)
+    assert half == pytest.approx((30 + 150 + 0.5 * 300) / (2 * 360))  # derived: as above
+    assert progress.utilisation_so_far(seen, {}, datetime(2026, 12, 2, 18, 6), 2) is None  # nothing finished yet

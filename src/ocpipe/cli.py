@@ -109,7 +109,10 @@ def progress(args) -> int:
         log = progress.newest_log(args.workdir)
         print(f"{log}, on {args.cores} cores: minutes left, estimated and real")
         recorded = progress.read_rule_times(Path(args.workdir, progress.RULE_TIMES))
-        print(progress.replay(progress.parse(log), args.workdir, args.cores, recorded))
+        table = progress.replay(progress.parse(log), args.workdir, args.cores, recorded)
+        print(" | ".join(table.columns))
+        for row in table.iter_rows():
+            print(" | ".join("-" if v is None else str(v) for v in row))
         return 0
     print("\n".join(progress.lines(args.workdir, args.cores, dry_run=not args.no_dry_run)))
     return 0

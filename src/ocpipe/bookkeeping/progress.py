@@ -155,23 +155,48 @@ def last_bar(log_file: Path) -> str:
     return lines[-1] if lines else ""
 
 
-def cpu_seconds(benchmark: Path) -> float | None:
-    """A finished job's CPU seconds; None where its benchmark file is missing or not yet whole."""
+def job_times(benchmark: Path) -> tuple[float, float] | None:
+    """A finished job's (wall, CPU) seconds; None where its benchmark file is missing or not yet whole."""
     try:
-        return benchmark_times(benchmark)[1]
+        return benchmark_times(benchmark)
     except (OSError, IndexError, ValueError):
         return None
 
 
-def finished_cpu(run: Run, workdir) -> dict[int, float]:
-    """jobid -> CPU seconds of each of the run's finished jobs whose benchmark file is whole."""
+def cpu_seconds(benchmark: Path) -> float | None:
+    """A finished job's CPU seconds; None where its benchmark file is missing or not yet whole."""
+    times = job_times(benchmark)
+    return None if times is None else times[1]
+
+
+def finished_times(run: Run, workdir) -> dict[int, tuple[float, float]]:
+    """jobid -> (wall, CPU) seconds of each of the run's finished jobs whose benchmark file is whole."""
     out = {}
     for i in sorted(run.finished):
         job = run.jobs.get(i)
-        cpu = cpu_seconds(Path(workdir, job.benchmark)) if job and job.benchmark else None
-        if cpu is not None:
-            out[i] = cpu
+        times = job_times(Path(workdir, job.benchmark)) if job and job.benchmark else None
+        if times is not None:
+            out[i] = times
     return out
+
+
+def finished_cpu(run: Run, workdir) -> dict[int, float]:
+    """jobid -> CPU seconds of each of the run's finished jobs whose benchmark file is whole."""
+    return {i: cpu for i, (_, cpu) in finished_times(run, workdir).items()}
+
+
+def utilisation_so_far(run: Run, times: dict[int, tuple[float, float]], now: datetime, cores: int) -> float | None:
+    """The share of the cores the run has kept busy up to ``now``: the CPU seconds of the jobs finished by then,
+    plus each job still running's wall time so far x the finished jobs' median CPU / wall, over cores x the time
+    since the first job started. None before any job has finished."""
+    ratios = [cpu / wall for wall, cpu in times.values() if wall > 0]
+    starts = [j.started for j in run.jobs.values() if j.started]
+    if not ratios or not starts or now <= min(starts):
+        return None
+    running = [j for i, j in run.jobs.items() if i not in times and j.started and j.started < now]
+    used = sum(cpu for _, cpu in times.values())
+    used += statistics.median(ratios) * sum((now - j.started).total_seconds() for j in running)
+    return min(1.0, used / (max(cores, 1) * (now - min(starts)).total_seconds()))
 
 
 def _medians(run: Run, cpu: dict[int, float], key) -> dict[str, float]:
@@ -301,18 +326,25 @@ def replay(run: Run, workdir, cores: int, recorded: Recorded | None = None, shar
     order = sorted(run.finished_at.items(), key=lambda kv: kv[1])
     if not order or run.jobs.keys() - run.finished:
         raise ValueError(f"{run.log}: not a finished run (replay needs every job started and finished)")
-    cpu = finished_cpu(run, workdir)
+    times = finished_times(run, workdir)
     end = order[-1][1]
     rows = []
     for share in shares:
         n = max(1, round(share * len(order)))
         done = {i for i, _ in order[:n]}
         pending = [j for i, j in run.jobs.items() if i not in done]
-        known = {i: c for i, c in cpu.items() if i in done}
-        kind, rule = (estimate(run, workdir, cores, recorded, pending, known, by_kind=b) for b in (True, False))
-        rows.append({"share": share, "jobs_done": n,
-                     "estimate_by_kind_min": round((kind.seconds + kind.recorded_seconds) / 60, 1),
-                     "estimate_by_rule_min": round((rule.seconds + rule.recorded_seconds) / 60, 1),
+        known = {i: t for i, t in times.items() if i in done}
+        cpu = {i: c for i, (_, c) in known.items()}
+        kind, rule = (estimate(run, workdir, cores, recorded, pending, cpu, by_kind=b) for b in (True, False))
+        # as a live run sees it then: the jobs started by then and not finished are the running ones
+        then = order[n - 1][1]
+        seen = Run(run.log, run.started, run.planned, {i: j for i, j in run.jobs.items() if j.started <= then})
+        busy = utilisation_so_far(seen, known, then, cores)
+        by_kind = (kind.seconds + kind.recorded_seconds) / 60
+        rows.append({"share": share, "jobs_done": n, "estimate_by_rule_min": round(
+                     (rule.seconds + rule.recorded_seconds) / 60, 1), "estimate_by_kind_min": round(by_kind, 1),
+                     "utilisation_so_far": None if busy is None else round(busy, 2),
+                     "estimate_by_kind_at_utilisation_min": None if not busy else round(by_kind / busy, 1),
                      "actual_min": round((end - order[n - 1][1]).total_seconds() / 60, 1),
                      "jobs_unpriced": sum(kind.unknown.values())})
     return pl.DataFrame(rows)
@@ -338,13 +370,19 @@ def lines(workdir=".", cores: int = 2, now: datetime | None = None, dry_run: boo
         what = f"{job.rule} {job.wildcards}".strip()
         out.append(f"  {what}" + (f"  |  {bar}" if bar else ""))
     pending = plan(run, workdir) if dry_run and run.done < run.total else None
-    est = estimate(run, workdir, cores, read_rule_times(Path(workdir, RULE_TIMES)), pending)
+    times = finished_times(run, workdir)
+    est = estimate(run, workdir, cores, read_rule_times(Path(workdir, RULE_TIMES)), pending,
+                   {i: cpu for i, (_, cpu) in times.items()})
+    busy = utilisation_so_far(run, times, now, cores)
     how = (f"{est.by_kind} priced by the median CPU time of this run's finished jobs of their kind, "
            f"{est.by_recorded_kind} by their kind's in the recorded run x {est.speed:.2f} (this run's speed "
            "against it), the rest by their rule's" if pending is not None else
            "for each rule, the median CPU time of this run's finished jobs x its jobs left")
+    at_pace = (f"; at this run's utilisation so far ({100 * busy:.0f} % of the cores busy), about "
+               f"{_minutes((est.seconds + est.recorded_seconds) / busy)} for these and the recorded-run part"
+               if busy else "")
     out.append(f"left: {run.total - run.done} jobs; {est.jobs} of them about {_minutes(est.seconds)} on {cores} "
-               f"cores ({how}; cores kept busy)")
+               f"cores ({how}; cores kept busy){at_pace}")
     if est.recorded_jobs:
         out.append(f"  {est.recorded_jobs} more, of rules with no finished job yet, about "
                    f"{_minutes(est.recorded_seconds)} as the recorded run ({RULE_TIMES}) priced their rules (its "
