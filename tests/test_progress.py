@@ -117,6 +117,11 @@ def test_a_log_without_its_cores_is_named(tmp_path):
     log.write_text("Building DAG of jobs...\nUsing shell: /usr/bin/bash\nProvided cores: 16\n" + LOG)
     assert progress.provided_cores(log) == 16
     assert progress.run_cores(tmp_path) is None  # no .snakemake/log here: not known, not an error
+    logs = tmp_path / ".snakemake" / "log"
+    logs.mkdir(parents=True)
+    (logs / "2026-12-02T000000.snakemake.log").write_text(log.read_text())
+    (logs / "2026-12-03T000000.snakemake.log").write_text(LOG)  # a later dry run or report: no core count
+    assert progress.run_cores(tmp_path) == 16
 
 
 def test_a_jobs_kind_is_its_rule_and_wildcards_less_replicate_shard_run_and_checkpoint():

@@ -95,12 +95,15 @@ def provided_cores(log: Path) -> int:
 
 
 def run_cores(workdir) -> int | None:
-    """The cores the newest run in ``workdir`` was given; None where there is no log or it names none (a run on
-    a cluster executor gives no core count, and Snakemake's own `workflow.cores` raises there)."""
-    try:
-        return provided_cores(newest_log(workdir))
-    except (FileNotFoundError, ValueError):
-        return None
+    """The cores the newest run in ``workdir`` that names them was given (a dry run or a `--report` call writes a
+    log without); None where no log names any (a run on a cluster executor gives no core count, and Snakemake's
+    own `workflow.cores` raises there)."""
+    for log in sorted(Path(workdir, ".snakemake", "log").glob("*.snakemake.log"), reverse=True):
+        try:
+            return provided_cores(log)
+        except ValueError:
+            continue
+    return None
 
 
 def _date(text: str) -> datetime | None:
