@@ -194,14 +194,14 @@ def test_jobs_are_priced_by_their_kind_then_the_records_kind_then_their_rule(tmp
     pending = [run.jobs[3], run.jobs[4]]  # a@1 and b@0, with ctl@0 and a@0 finished
     done = {1: 60.0, 2: 300.0}
     # a@1 at its kind's 300 s; b@0 has no kind here and no record: the rule's median of 60 and 300, 180 s
-    est = progress.estimate(run, tmp_path, 1, None, pending, done)
+    est = progress.estimate(run, 1, done, None, pending)
     assert (est.seconds, est.by_kind, est.by_recorded_kind) == (300.0 + 180.0, 1, 0)
     # a record that had b at 400 s and a at 150 s: this run is twice as slow (300 / 150), so b costs 800 s
     record = progress.Recorded({"train": 200.0}, {"train exp=a": 150.0, "train exp=b": 400.0})
-    est = progress.estimate(run, tmp_path, 1, record, pending, done)
+    est = progress.estimate(run, 1, done, record, pending)
     assert (est.speed, est.seconds, est.by_kind, est.by_recorded_kind) == (2.0, 300.0 + 800.0, 1, 1)
     # on 2 cores, the same work in half the time
-    assert progress.estimate(run, tmp_path, 2, record, pending, done).seconds == (300.0 + 800.0) / 2
+    assert progress.estimate(run, 2, done, record, pending).seconds == (300.0 + 800.0) / 2
 
 
 def test_replay_sets_each_estimate_beside_the_time_the_run_really_went_on(tmp_path):

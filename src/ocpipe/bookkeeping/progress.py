@@ -183,9 +183,9 @@ def finished_times(run: Run, workdir) -> dict[int, tuple[float, float]]:
     return out
 
 
-def finished_cpu(run: Run, workdir) -> dict[int, float]:
-    """jobid -> CPU seconds of each of the run's finished jobs whose benchmark file is whole."""
-    return {i: cpu for i, (_, cpu) in finished_times(run, workdir).items()}
+def cpu_of(times: dict[int, tuple[float, float]]) -> dict[int, float]:
+    """jobid -> CPU seconds, of finished_times' (wall, CPU) pairs."""
+    return {i: cpu for i, (_, cpu) in times.items()}
 
 
 def utilisation_so_far(run: Run, times: dict[int, tuple[float, float]], now: datetime, cores: int) -> float | None:
@@ -266,12 +266,16 @@ class Estimate:
     recorded_jobs: int = 0
     unknown: dict[str, int] = field(default_factory=dict)
 
+    @property
+    def priced_seconds(self) -> float:
+        """This run's part and the recorded-run part together."""
+        return self.seconds + self.recorded_seconds
 
-def estimate(run: Run, workdir, cores: int, recorded: Recorded | None = None, pending: list[Job] | None = None,
-             cpu: dict[int, float] | None = None, by_kind: bool = True) -> Estimate:
+
+def estimate(run: Run, cores: int, cpu: dict[int, float], recorded: Recorded | None = None,
+             pending: list[Job] | None = None, by_kind: bool = True) -> Estimate:
     """The time ``pending`` jobs still need (default: each rule's planned jobs less its finished ones, kinds
-    unknown), priced from ``cpu`` (default: every finished job's) and the ``recorded`` run."""
-    cpu = finished_cpu(run, workdir) if cpu is None else cpu
+    unknown), priced from ``cpu`` (jobid -> CPU seconds of the finished jobs) and the ``recorded`` run."""
     recorded = recorded or Recorded()
     kinds = _medians(run, cpu, lambda j: j.kind) if by_kind else {}
     rules = _medians(run, cpu, lambda j: j.rule)
@@ -337,18 +341,17 @@ def replay(run: Run, workdir, cores: int, recorded: Recorded | None = None, shar
         done = {i for i, _ in order[:n]}
         pending = [j for i, j in run.jobs.items() if i not in done]
         known = {i: t for i, t in times.items() if i in done}
-        cpu = {i: c for i, (_, c) in known.items()}
-        kind, rule = (estimate(run, workdir, cores, recorded, pending, cpu, by_kind=b) for b in (True, False))
+        kind, rule = (estimate(run, cores, cpu_of(known), recorded, pending, by_kind=b) for b in (True, False))
         # as a live run sees it then: the jobs started by then and not finished are the running ones
         then = order[n - 1][1]
         seen = Run(run.log, run.started, run.planned, {i: j for i, j in run.jobs.items() if j.started <= then})
         busy = utilisation_so_far(seen, known, then, cores)
-        by_kind = (kind.seconds + kind.recorded_seconds) / 60
-        rows.append({"share": share, "jobs_done": n, "estimate_by_rule_min": round(
-                     (rule.seconds + rule.recorded_seconds) / 60, 1), "estimate_by_kind_min": round(by_kind, 1),
+        by_kind = kind.priced_seconds / 60
+        rows.append({"share": share, "jobs_done": n, "estimate_by_rule_min": round(rule.priced_seconds / 60, 1),
+                     "estimate_by_kind_min": round(by_kind, 1),
                      "utilisation_so_far": None if busy is None else round(busy, 2),
                      "estimate_by_kind_at_utilisation_min": None if not busy else round(by_kind / busy, 1),
-                     "actual_min": round((end - order[n - 1][1]).total_seconds() / 60, 1),
+                     "actual_min": round((end - then).total_seconds() / 60, 1),
                      "jobs_unpriced": sum(kind.unknown.values())})
     return pl.DataFrame(rows)
 
@@ -374,15 +377,14 @@ def lines(workdir=".", cores: int = 2, now: datetime | None = None, dry_run: boo
         out.append(f"  {what}" + (f"  |  {bar}" if bar else ""))
     pending = plan(run, workdir) if dry_run and run.done < run.total else None
     times = finished_times(run, workdir)
-    est = estimate(run, workdir, cores, read_rule_times(Path(workdir, RULE_TIMES)), pending,
-                   {i: cpu for i, (_, cpu) in times.items()})
+    est = estimate(run, cores, cpu_of(times), read_rule_times(Path(workdir, RULE_TIMES)), pending)
     busy = utilisation_so_far(run, times, now, cores)
     how = (f"{est.by_kind} priced by the median CPU time of this run's finished jobs of their kind, "
            f"{est.by_recorded_kind} by their kind's in the recorded run x {est.speed:.2f} (this run's speed "
            "against it), the rest by their rule's" if pending is not None else
            "for each rule, the median CPU time of this run's finished jobs x its jobs left")
     at_pace = (f"; at this run's utilisation so far ({100 * busy:.0f} % of the cores busy), about "
-               f"{_minutes((est.seconds + est.recorded_seconds) / busy)} for these and the recorded-run part"
+               f"{_minutes(est.priced_seconds / busy)} for these and the recorded-run part"
                if busy else "")
     out.append(f"left: {run.total - run.done} jobs; {est.jobs} of them about {_minutes(est.seconds)} on {cores} "
                f"cores ({how}; cores kept busy){at_pace}")
