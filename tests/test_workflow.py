@@ -382,6 +382,18 @@ def test_dry_run_of_all_audits_the_whole_study_on_both_configs(tmp_path):
         assert "results/tables/findings.csv" in out
         assert "rule compute:" in out and "results/tables/compute.csv" in out  # the run's compute table, last
     assert "results/frames/StackCube-v1_dual_224" in thesis and "results/frames/StackCube-v1_dual_224" not in default
+    # long chains start first (ocpipe.config.scheduling): StackCube's stores and policies, then longer windows
+    priority = {}
+    for block in re.split(r"\n(?=\S*rule )", default):
+        job = re.match(r"\s*\S*rule (\w+):.*?wildcards: ([^\n]+)", block, re.S)
+        if job:
+            found = re.search(r"priority: (\d+)", block)
+            priority[job.groups()] = int(found.group(1)) if found else 0
+    assert priority[("features", "task=StackCube-v1, cams=native, res=128, encoder=slots_ssl")] == 2
+    assert priority[("features", "task=PickCube-v1, cams=dual, res=128, encoder=slots_ssl")] == 0
+    assert priority[("train", "exp=stack_native")] == priority[("sweep", "exp=stack_native, epoch=0032")] == 2
+    assert priority[("train", "exp=window40")] == priority[("stability", "exp=window40, run=0")] == 1
+    assert priority[("train", "exp=goal2d")] == priority[("train", "exp=state_control")] == 0
 
 
 def test_a_baseline_lever_reads_its_experiments_run_instead_of_training_a_copy(tmp_path):

@@ -2,7 +2,7 @@
 # change to a setting reruns exactly the jobs that read it), target lists and every input function.
 from ocpipe import paths
 from ocpipe.config import experiments as _exp
-from ocpipe.config import job_params
+from ocpipe.config import job_params, scheduling
 from ocpipe.encoders.registry import ENCODERS, SLOT_ENCODERS
 from ocpipe.study import inputs, targets
 
@@ -124,6 +124,16 @@ def encoder_checkpoint(encoder):
 def policy_of(w):
     """The resolved policy settings of the job's experiment (``exp``: one of its policies, paths.policy_id)."""
     return _exp.resolve(config, paths.split_policy(w.exp)[0])
+
+
+def store_priority(w):
+    """Long chains start first (ocpipe.config.scheduling): a store job by its task."""
+    return scheduling.task_priority(w.task, config)
+
+
+def policy_priority(w):
+    """Long chains start first (ocpipe.config.scheduling): a policy's training and evaluation jobs by its settings."""
+    return scheduling.policy_priority(policy_of(w) if w.get("exp") else lever_of(w), config)
 
 
 def training_seed(w):

@@ -12,6 +12,7 @@ if config["demos"]["source"] == "motionplanning":
             "results/logs/demos_shard/{task}_shard{shard}.log",
         benchmark:
             "results/benchmarks/demos_shard/{task}_shard{shard}.tsv"
+        priority: store_priority
         conda:
             "../envs/ocpipe.yaml"
         threads: threads_of("demos")

@@ -51,6 +51,7 @@ rule sweep:
         "results/benchmarks/sweep/{exp}_epoch_{epoch}.tsv"
     wildcard_constraints:
         epoch=r"\d{4}",
+    priority: policy_priority
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("evaluate")
