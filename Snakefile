@@ -3,6 +3,7 @@
 import sys
 from pathlib import Path
 
+from ocpipe.bookkeeping import report_page
 from ocpipe.config.errors import ConfigError
 from ocpipe.config.validate import validate
 from ocpipe.study import registry
@@ -19,6 +20,15 @@ except ConfigError as err:
     sys.exit(f"ocpipe: {err}")
 
 
+# `snakemake --report` opens on this page: the findings, Table 5.1, the profile and the commit. Snakemake renders it
+# with Jinja, which sees the config but no file, then with docutils in this process: the directives registered here
+# read the run's tables and the checkout's commit when the report is built (ocpipe.bookkeeping.report_page).
+report_page.register(workflow.basedir)
+
+
+report: "workflow/report/workflow.rst"
+
+
 include: "workflow/rules/common.smk"
 include: "workflow/rules/demos.smk"
 include: "workflow/rules/frames.smk"
@@ -26,6 +36,7 @@ include: "workflow/rules/encoders.smk"
 include: "workflow/rules/features.smk"
 include: "workflow/rules/policy.smk"
 include: "workflow/rules/evaluation.smk"
+include: "workflow/rules/gallery.smk"
 include: "workflow/rules/levers.smk"
 
 
@@ -63,6 +74,13 @@ rule stackcube:
         expand(paths.FIGURE, figure=registry.figures_in("stackcube")),
 
 
+rule gallery:
+    """Evaluated episodes to watch: for each row of Tables 5.1/5.2 and 5.10/5.11 and each failure class among its
+    episodes, `gallery.episodes_per_class` episodes replayed as videos and a contact sheet (results/gallery/{exp}/)."""
+    input:
+        gallery_targets(),
+
+
 rule two_builds:
     """The main job's and StackCube's findings (1-3, 11-12) from two independent builds of K policies each (config
     `replicate_seed_offset` and offset + K), side by side (results/tables/two_builds_*.md)."""
@@ -80,8 +98,15 @@ rule compute:
         rules.ablations.input,
         rules.stackcube.input,
         f"{paths.TABLE_DIR}/findings.csv",
+        rules.gallery.input,
     output:
-        csv=report(f"{paths.TABLE_DIR}/compute.csv", category="Tables", labels={"table": "compute"}),
+        csv=report(
+            f"{paths.TABLE_DIR}/compute.csv",
+            caption="workflow/report/compute.rst",
+            category="Tables",
+            subcategory=report_page.WHOLE_STUDY,
+            labels={"table": "compute: where the run's time went"},
+        ),
         md=f"{paths.TABLE_DIR}/compute.md",
     log:
         "results/logs/tables/compute.log",
@@ -100,8 +125,8 @@ rule compute:
 
 
 rule all:
-    """Everything the study reports, with the attention maps (appendix E) of every store an experiment uses, and
-    the compute table of the run."""
+    """Everything the study reports, with the attention maps (appendix E) of every store an experiment uses, the
+    gallery of evaluated episodes, and the compute table of the run."""
     default_target: True
     input:
         rules.compute.input,

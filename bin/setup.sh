@@ -35,7 +35,25 @@ install_lavapipe() {
     DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq -t bookworm-backports mesa-vulkan-drivers libvulkan1 >/dev/null
 }
 
+install_chromium() {
+    # tests/test_report.py opens the Snakemake report in headless Chromium; elsewhere it skips (fails under CI)
+    if ! command -v apt-get >/dev/null 2>&1 || ! grep -qs '^ID=debian' /etc/os-release; then
+        echo "ocpipe setup: no chromium/chromedriver and this is not Debian: the report's browser test will skip." >&2
+        echo "  Install Chromium and its matching chromedriver yourself to run it; see docs/development.md." >&2
+        return 0
+    fi
+    local sudo=""
+    [ "$(id -u)" -eq 0 ] || sudo="sudo"
+    echo "ocpipe setup: installing chromium and chromium-driver (the report's browser test)"
+    $sudo apt-get update -qq
+    # Debian's chromium, not Google Chrome: its driver comes from the same source package, so the versions match
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq chromium chromium-driver >/dev/null
+}
+
 if [ "${OCPIPE_SKIP_VULKAN:-0}" != 1 ] && ! have_vulkan_device; then install_lavapipe; fi
+if [ "${OCPIPE_SKIP_CHROMIUM:-0}" != 1 ] && ! { command -v chromium && command -v chromedriver; } >/dev/null 2>&1; then
+    install_chromium
+fi
 
 if [ ! -x "$VENV/bin/python" ]; then "$PY" -m venv "$VENV"; fi
 stamp="$VENV/.ocpipe-installed"

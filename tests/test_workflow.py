@@ -12,7 +12,7 @@ import numpy as np
 import polars as pl
 import pytest
 import yaml
-from conftest import REPO
+from conftest import REPO, TABLES, snakemake
 from tolerances import EPS16, EPS32, reduction_atol
 
 from ocpipe import paths
@@ -20,30 +20,8 @@ from ocpipe.frames import render
 from ocpipe.frames import store as frames_store
 from ocpipe.paths import split_policy
 
-SNAKEMAKE = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile")]
-TINY = yaml.safe_load((REPO / ".test" / "config.yaml").read_text())  # the committed tiny study
-
-TABLES = ["results/tables/table5_1.csv", "results/tables/table5_2.csv", "results/figures/fig5_1.png",
-          "results/figures/fig5_2.png", "results/figures/fig5_3.png",
-          "results/tables/table5_6.csv",  # an ablation table end to end: fusion, with training-seed runs
-          "results/tables/findings_main.csv",
-          "results/tables/levers.csv"]  # the levers target: two levers on the validation pool
 TRAINED = ["results/runs/goal2d/train_log.parquet"]
-
-
-def snakemake(workdir, *args, check=True):
-    proc = subprocess.run([*SNAKEMAKE, "--directory", str(workdir), *args], cwd=workdir, capture_output=True, text=True)
-    if check and proc.returncode != 0:
-        raise AssertionError(f"snakemake {' '.join(args)} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
-    return proc
-
-
-@pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):
-    work = tmp_path_factory.mktemp("tiny")
-    (work / "tiny.yaml").write_text(yaml.safe_dump(TINY))
-    snakemake(work, "--configfile", "tiny.yaml", "--cores", "2", "encodings", *TABLES)
-    return work
+# the tiny run itself (the tiny_run fixture, TABLES, snakemake): tests/conftest.py, which tests/test_report.py shares
 
 
 def test_dry_run_lists_the_dag_on_the_default_config(tmp_path):

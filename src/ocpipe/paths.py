@@ -52,6 +52,8 @@ LEVER_EVAL = LEVER + "/validation"  # .episodes.parquet and .steps.parquet
 TABLE = RESULTS + "/tables/{table}"  # .csv and .md (findings: TABLE_DIR/{scope})
 TABLE_DIR = RESULTS + "/tables"
 FIGURE = RESULTS + "/figures/{figure}.png"
+# one experiment's gallery (a row of Tables 5.1/5.2 or 5.10/5.11): videos/, sheets/ and episodes.csv
+GALLERY = RESULTS + "/gallery/{exp}"
 
 
 FRAMES_NAME = "{task}_{cams}_{res}"  # a frames store's name, as config `encoders.slots_ssl.train_stores` lists it

@@ -4,6 +4,7 @@ from ocpipe import paths
 from ocpipe.config import experiments as _exp
 from ocpipe.config import job_params, scheduling
 from ocpipe.encoders.registry import ENCODERS, SLOT_ENCODERS
+from ocpipe.gallery import selection as gallery_selection
 from ocpipe.study import inputs, targets
 
 
@@ -219,3 +220,41 @@ LEVER_FILES = {
     ]
     for name in config["levers"].get("build") or config["levers"]["sets"]
 }
+
+
+# the gallery (workflow/rules/gallery.smk)
+# experiment -> {table: its row label}, over the tables the gallery covers (rows the config cannot run left out)
+GALLERY_ROWS = gallery_selection.rows(config)
+
+
+def gallery_runs(exp):
+    """Policy id -> the evaluation runs its failure classes were read from (episodes files; steps files beside)."""
+    return {pid: failure_inputs(pid) for pid in targets.policies(config, exp)}
+
+
+def gallery_inputs(w):
+    """Each policy's failure classes and classified runs, and, for a slot encoder, what its masks are computed with."""
+    p = policy_of(w)
+    runs = gallery_runs(w.exp)
+    out = {
+        "classes": [paths.FAILURES.format(exp=pid) for pid in runs],
+        "episodes": [f for files in runs.values() for f in files],
+        "steps": [paths.steps_beside(f) for files in runs.values() for f in files],
+    }
+    if p["encoder"] in SLOT_ENCODERS:
+        out["frames"] = paths.frames_store(_exp.frames_store(p))
+        out["encoder"] = encoder_checkpoint(p["encoder"])
+    return out
+
+
+def gallery_group(w):
+    return gallery_selection.row_title(GALLERY_ROWS[w.exp])
+
+
+def gallery_targets():
+    """Every experiment's gallery of the rows the gallery covers."""
+    return [
+        f
+        for exp in GALLERY_ROWS
+        for f in expand(f"{paths.GALLERY}/{{part}}", exp=exp, part=("videos", "sheets", "episodes.csv"))
+    ]

@@ -2,6 +2,7 @@
 # checkpoint, stability runs (one job each), Table 5.5's training-time runs, training-seed runs, failure
 # classification (docs/study.md, Failure taxonomy), and the study's tables and figures (docs/study.md, Tables and
 # figures).
+from ocpipe.bookkeeping import report_page
 from ocpipe.study import builds, conditions, findings, registry, targets
 
 
@@ -171,7 +172,13 @@ rule table:
         # the footer names where the rows depart from the study's recipe, which this file states
         recipe=str(conditions.STUDY_PROFILE),
     output:
-        csv=report(f"{paths.TABLE}.csv", category="Tables", labels={"table": "{table}"}),
+        csv=report(
+            f"{paths.TABLE}.csv",
+            caption="../report/table.rst",
+            category="Tables",
+            subcategory=lambda w: report_page.table_group(w.table),
+            labels=lambda w: report_page.table_label(w.table),
+        ),
         md=f"{paths.TABLE}.md",
     log:
         "results/logs/tables/{table}.log",
@@ -196,7 +203,13 @@ rule findings:
     input:
         lambda w: targets.findings_inputs(config, w.scope),
     output:
-        csv=report(f"{paths.TABLE_DIR}/{{scope}}.csv", category="Tables", labels={"table": "{scope}"}),
+        csv=report(
+            f"{paths.TABLE_DIR}/{{scope}}.csv",
+            caption="../report/findings.rst",
+            category="Tables",
+            subcategory=lambda w: report_page.findings_group(w.scope),
+            labels=lambda w: report_page.findings_label(w.scope),
+        ),
         md=f"{paths.TABLE_DIR}/{{scope}}.md",
     log:
         "results/logs/tables/{scope}.log",
@@ -223,7 +236,11 @@ rule build_comparison:
         lambda w: builds.inputs(config, w.scope),
     output:
         csv=report(
-            f"{paths.TABLE_DIR}/two_builds_{{scope}}.csv", category="Tables", labels={"table": "two builds {scope}"}
+            f"{paths.TABLE_DIR}/two_builds_{{scope}}.csv",
+            caption="../report/two_builds.rst",
+            category="Tables",
+            subcategory=lambda w: report_page.findings_group(w.scope),
+            labels=lambda w: report_page.findings_label(w.scope, two_builds=True),
         ),
         rows=f"{paths.TABLE_DIR}/two_builds_{{scope}}.rows.csv",
         md=f"{paths.TABLE_DIR}/two_builds_{{scope}}.md",
@@ -249,7 +266,13 @@ rule figure:
     input:
         lambda w: targets.inputs(config, registry.FIGURES[w.figure].table, registry.FIGURES[w.figure].needs),
     output:
-        png=report(paths.FIGURE, category="Figures", labels={"figure": "{figure}"}),
+        png=report(
+            paths.FIGURE,
+            caption="../report/figure.rst",
+            category="Figures",
+            subcategory=lambda w: report_page.figure_group(w.figure),
+            labels=lambda w: report_page.figure_label(w.figure),
+        ),
     log:
         "results/logs/figures/{figure}.log",
     benchmark:
@@ -273,11 +296,25 @@ rule figures5_1_to_5_3:
     output:
         fig5_1=report(
             paths.FIGURE.format(figure="fig5_1"),
+            caption="../report/fig5_1.rst",
             category="Figures",
-            labels={"figure": "5.1 training loss and evaluation reward"},
+            subcategory=report_page.figure_group("fig5_1"),
+            labels=report_page.figure_label("fig5_1"),
         ),
-        fig5_2=report(paths.FIGURE.format(figure="fig5_2"), category="Figures", labels={"figure": "5.2 episode length"}),
-        fig5_3=report(paths.FIGURE.format(figure="fig5_3"), category="Figures", labels={"figure": "5.3 failure counts"}),
+        fig5_2=report(
+            paths.FIGURE.format(figure="fig5_2"),
+            caption="../report/fig5_2.rst",
+            category="Figures",
+            subcategory=report_page.figure_group("fig5_2"),
+            labels=report_page.figure_label("fig5_2"),
+        ),
+        fig5_3=report(
+            paths.FIGURE.format(figure="fig5_3"),
+            caption="../report/fig5_3.rst",
+            category="Figures",
+            subcategory=report_page.figure_group("fig5_3"),
+            labels=report_page.figure_label("fig5_3"),
+        ),
     log:
         f"results/logs/figures/{registry.SPATIAL_FIGURES_JOB}.log",
     benchmark:

@@ -49,7 +49,13 @@ rule levers:
     input:
         [f for policies in LEVER_FILES.values() for files in policies for f in files],
     output:
-        csv=f"{paths.TABLE_DIR}/levers.csv",
+        csv=report(
+            f"{paths.TABLE_DIR}/levers.csv",
+            caption="../report/levers.rst",
+            category="Tables",
+            subcategory=report_page.LEVERS,
+            labels={"table": "levers on the validation pool"},
+        ),
         md=f"{paths.TABLE_DIR}/levers.md",
     log:
         "results/logs/levers.log",

@@ -26,7 +26,8 @@ from ..util.atomic import atomic_path
 # benchmark folder -> (what the job builds, stage); the file name, less a shard/epoch/run suffix, names the thing
 EXPERIMENT_STAGES = {"train": "train", "sweep": "sweep", "stability": "stability", "best": "other",
                      "failures": "other", "failure_run": "other", "train_seed_run": "other",
-                     "training_time_run": "stability"}  # Table 5.5's run stands in for its rows' stability runs
+                     "training_time_run": "stability",  # Table 5.5's run stands in for its rows' stability runs
+                     "gallery": "gallery"}
 STORE_STAGES = {"demos_shard": "demos", "demos_merge": "demos", "demos_import": "demos",
                 "frames_shard": "frames", "frames_merge": "frames", "frames_report": "frames",
                 "features": "features", "features_diagnostics": "features", "attention_maps": "features",
@@ -34,7 +35,8 @@ STORE_STAGES = {"demos_shard": "demos", "demos_merge": "demos", "demos_import": 
 ENCODER_JOBS = {"train_slots_ssl": "slots_ssl", "train_spot_slots_on_dino": "spot"}
 # a job's shard, epoch or run, and a policy's replicate (paths.policy_id): an experiment is charged for all its policies
 SUFFIX = re.compile(r"(@\d+)?(_shard\d+|_epoch_\d+|_run_\d+)?$")
-STAGES = ("train", "sweep", "stability", "other", "demos", "frames", "features", "scenes", "encoder", "report")
+STAGES = ("train", "sweep", "stability", "other", "gallery", "demos", "frames", "features", "scenes", "encoder",
+          "report")
 
 
 def benchmark_times(path) -> tuple[float, float]:

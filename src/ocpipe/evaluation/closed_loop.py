@@ -26,6 +26,7 @@ from ..policy.checkpoint import load_policy
 from ..policy.settings import PolicySettings
 from ..sim import envs
 from ..util.devices import to_device
+from . import replay
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +84,15 @@ def cameras_to_render(policy: PolicySettings, reads_labels: bool) -> list[str]:
     return [names[i] for i in policy.stores.cameras]
 
 
+def policy_env(policy: PolicySettings | dict, config: dict, reads_labels: bool):
+    """The environment a policy is evaluated in: its task, camera set, resolution, the sim's shader and robot
+    visuals, rendering what cameras_to_render says (nothing for an encoder that reads the simulator's state)."""
+    policy = PolicySettings.of(policy)
+    rendered = cameras_to_render(policy, reads_labels)
+    return envs.make_env(policy.stores.task, config, policy.stores.cams if rendered else None,
+                         policy.stores.resolution, obs_mode="rgb", cameras=rendered)
+
+
 class ClosedLoop:
     """One environment + the frozen encoder + one policy checkpoint.
 
@@ -105,9 +115,7 @@ class ClosedLoop:
         self.camera_names = list(envs.CAMERA_SETS[p.stores.cams])
         self.uids = [envs.SIM_CAMERA_UID[c] for c in self.camera_names]
         self.read_uids = [self.uids[i] for i in read]
-        rendered = cameras_to_render(p, self.reads_labels)
-        self.env = envs.make_env(self.task, config, p.stores.cams if rendered else None, p.stores.resolution,
-                                 obs_mode="rgb", cameras=rendered)
+        self.env = policy_env(p, config, self.reads_labels)
         self.approx = envs.approx_camera_matrices(config, self.camera_names, p.stores.resolution)
         ev = config["evaluation"]
         self.cap = ev["episode_cap"][self.task]
@@ -168,7 +176,7 @@ class ClosedLoop:
         T = self.policy.network.window
         window: deque = deque(maxlen=T)
         steps: dict[str, list] = {k: [] for k in ("step", "action", "is_grasped", "tcp_pos", "goal_pos", "obj_pos",
-                                                   "obj_est", "obj_seen", "reward")}
+                                                   "obj_est", "obj_seen", "reward", "state")}
         chunks: deque = deque(maxlen=-(-self.policy.network.horizon // self.execute))  # (query step, (H, 8) actions)
         success, total, info = False, 0.0, None
         for t in range(self.cap):
@@ -192,10 +200,13 @@ class ClosedLoop:
             obs, reward, _, _, info = self.env.step(torch.as_tensor(action[None]))
             reward = float(reward[0])
             total += reward
+            # the state after the step, so the episode replays checked step by step (evaluation/replay.py): 70
+            # floats, ~0.15 ms of CPU against ~47 ms for the step (docs/results.md: CPU ms per closed-loop step)
+            state = replay.env_state(self.env)
             for k, v in (("step", t), ("action", action.tolist()), ("is_grasped", labels["is_grasped"]),
                          ("tcp_pos", labels["tcp_pos"].tolist()), ("goal_pos", labels["goal_pos"].tolist()),
                          ("obj_pos", labels["obj_pos"].tolist()), ("obj_est", self.object_position(pose)),
-                         ("obj_seen", self.object_position(seen)), ("reward", reward)):
+                         ("obj_seen", self.object_position(seen)), ("reward", reward), ("state", state)):
                 steps[k].append(v)
             if bool(info["success"][0]):
                 success = True
@@ -227,7 +238,8 @@ def run(loop: ClosedLoop, seeds: list[int], ids: dict, progress: bool = True) ->
         row, steps = loop.episode(seed)
         rows.append({**ids, **loop.settings(), **row})
         step_frames.append(pl.DataFrame({**{k: [v] * len(steps["step"]) for k, v in ids.items()},
-                                         "seed": [seed] * len(steps["step"]), **steps}))
+                                         "seed": [seed] * len(steps["step"]), **steps},
+                                        schema_overrides={"state": pl.List(pl.Float32)}))
         sr = np.mean([r["success"] and not r["trivial"] for r in rows])
         bar.set_postfix(sr=f"{sr:.2f}")
     log.info("%d episodes in %.1f s", len(seeds), time.perf_counter() - t0)

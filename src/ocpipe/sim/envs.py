@@ -143,6 +143,23 @@ def make_env(task: str, config: dict, camera_set: str | None = None, resolution:
     )
 
 
+def make_viewer_env(task: str, config: dict, resolution: int, shader: str = "default"):
+    """An environment to watch ``task`` in, not a policy's: no sensor cameras, the original robot meshes whatever
+    sim.robot_visual_keep says, the floor as sim.ground_cells draws it (the same texture: a 100 x 100 grid costs a
+    fifth of a frame), and ManiSkill's human render camera (``env.render()``) at ``resolution`` with the ``shader``
+    pack. It shows what cameras hide (PickCube's goal sphere). Physics as make_env's."""
+    if task not in TASKS:
+        raise ValueError(f"unknown task {task!r}; known: {', '.join(TASKS)}")
+    sim = config["sim"]
+    cells = sim.get("ground_cells")
+    cls, extra = (_lowpoly_env_class(task), {"ground_cells": cells}) if cells is not None else (_env_class(task), {})
+    return cls(
+        goal_visible=config["frames"]["goal_marker_visible"], keep_sensors=[], obs_mode="state_dict",
+        control_mode=sim["control_mode"], sim_backend=sim["backend"], num_envs=1, render_mode="rgb_array",
+        human_render_camera_configs={"width": resolution, "height": resolution, "shader_pack": shader}, **extra,
+    )
+
+
 def task_object(env):
     """The actor the task manipulates (PickCube's cube, StackCube's cubeA)."""
     u = env.unwrapped
