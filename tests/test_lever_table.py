@@ -23,7 +23,7 @@ def _files(tmp_path, name, successes, n=20, seconds=(30.0, 30.0), err=0.01, read
 
 
 def test_each_lever_is_tested_against_its_experiments_baseline(tmp_path):
-    config = {"profile": "test", "levers": {"episodes": 20, "sets": {
+    config = {"profile": "test", "levers": {"episodes": 20, "adoption_max_drop_points": 3, "sets": {
         "a": {"experiment": "goal2d"}, "a_off": {"experiment": "goal2d", "policy": {"visual_dropout": 0.0}},
         "b": {"experiment": "goal3d", "policy": {"visual_head": "none"}}}}}
     inputs = {"a": [_files(tmp_path, "a", 4)], "a_off": [_files(tmp_path, "a_off", 14, err=0.02)],
@@ -59,7 +59,8 @@ def test_a_lever_resolves_over_its_experiment_and_bad_levers_are_named(default_c
     assert resolve_lever(default_config, "w_share")["epochs"] == round(base * 0.5)
     assert "epoch_share" not in resolve_lever(default_config, "w_share")
     del sets["w_budget"], sets["w_share"]
-    bad = {**default_config, "levers": {"episodes": 500, "replicates": 1, "build": ["goal2d", "goal2d_typo"], "sets": {
+    bad = {**default_config, "levers": {
+        "episodes": 500, "replicates": 1, "adoption_max_drop_points": 3, "build": ["goal2d", "goal2d_typo"], "sets": {
         **sets, "x": {"experiment": "nope"}, "y": {"experiment": "goal2d", "policy": {"visual_head": "none",
                                                                                        "object_readout": False}}}}}
     with pytest.raises(C.ConfigError) as err:
@@ -71,12 +72,12 @@ def test_a_lever_resolves_over_its_experiment_and_bad_levers_are_named(default_c
     assert "levers.build: 'goal2d_typo' is not a lever under levers.sets" in msg
     assert "'goal2d' is not" not in msg
     with pytest.raises(C.ConfigError, match="levers.sets.z.policy.widht"):
-        C.validate({**default_config, "levers": {"episodes": 2, "replicates": 1, "sets": {"z": {"experiment": "goal2d",
-                                                                                "policy": {"widht": 3}}}}})
+        C.validate({**default_config, "levers": {"episodes": 2, "replicates": 1, "adoption_max_drop_points": 3,
+                                                 "sets": {"z": {"experiment": "goal2d", "policy": {"widht": 3}}}}})
 
 
 def test_a_lever_of_several_policies_is_tested_across_them(tmp_path):
-    config = {"profile": "test", "levers": {"episodes": 20, "sets": {
+    config = {"profile": "test", "levers": {"episodes": 20, "adoption_max_drop_points": 3, "sets": {
         "a": {"experiment": "goal2d"}, "a_off": {"experiment": "goal2d", "policy": {"visual_dropout": 0.0}}}}}
     # the baseline's policies spread from 2 to 18 of 20; the lever's sit at 12-13: pooled, 62 of 100 against 50
     # of 100 would be p ~ 0.11 by Fisher, and across policies the spread leaves it far from resolved
@@ -88,3 +89,28 @@ def test_a_lever_of_several_policies_is_tested_across_them(tmp_path):
     assert rows["a"]["SR"] == 0.5  # exact: five rates k/20 whose mean is 10/20, each a multiple of 1/20 summed
     assert rows["a_off"]["p vs baseline"] > 0.2
     assert "Welch's t over the policies' SRs" in (tmp_path / "levers.md").read_text()
+
+
+def test_a_cheaper_lever_is_adoptable_only_without_a_resolved_loss_or_a_drop_beyond_the_limit(tmp_path):
+    config = {"profile": "test", "levers": {"episodes": 20, "adoption_max_drop_points": 3, "sets": {
+        "a": {"experiment": "goal2d"}, "a_same": {"experiment": "goal2d", "policy": {"epochs": 10}},
+        "a_loss": {"experiment": "goal2d", "policy": {"epochs": 2}},
+        "a_noisy": {"experiment": "goal2d", "policy": {"epochs": 5}}}}}
+    inputs = {"a": [_files(tmp_path, f"a{i}", k) for i, k in enumerate((10, 11, 10, 9, 10))],
+              # 9.6 of 20 against 10: 2 points down, unresolved
+              "a_same": [_files(tmp_path, f"s{i}", k) for i, k in enumerate((9, 10, 10, 9, 10))],
+              # 4.4 of 20: 28 points down, resolved
+              "a_loss": [_files(tmp_path, f"l{i}", k) for i, k in enumerate((4, 5, 4, 5, 4))],
+              # 9 of 20 on average with a wide spread: 5 points down, not resolved, but beyond the 3-point limit
+              "a_noisy": [_files(tmp_path, f"n{i}", k) for i, k in enumerate((2, 16, 5, 13, 9))]}
+    table = levers.write(config, inputs, tmp_path / "levers.csv", tmp_path / "levers.md")
+    rows = {r["Lever"]: r for r in table.iter_rows(named=True)}
+    assert rows["a"]["Adoptable"] is None and rows["a"]["SR change (points)"] is None
+    assert rows["a_same"]["SR change (points)"] == -2.0 and rows["a_same"]["p of a loss"] > 0.05
+    assert rows["a_same"]["Adoptable"] == "yes"
+    assert rows["a_loss"]["p of a loss"] < 0.05 and rows["a_loss"]["Adoptable"].startswith("no: a resolved loss")
+    assert rows["a_noisy"]["SR change (points)"] == -5.0 and rows["a_noisy"]["p of a loss"] > 0.05
+    assert rows["a_noisy"]["Adoptable"] == "no: the mean drops by more than 3 points"
+    # the one-sided p of a loss is half the two-sided p where the lever is below
+    assert rows["a_loss"]["p of a loss"] == pytest.approx(rows["a_loss"]["p vs baseline"] / 2)
+    assert "at most 3 points below the baseline's" in (tmp_path / "levers.md").read_text()
