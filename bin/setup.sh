@@ -19,20 +19,26 @@ have_vulkan_device() {
     [ -n "$v" ] && dpkg --compare-versions "$v" ge 24.3
 }
 
+as_root() {
+    if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi
+}
+
+apt_install() {  # apt_install [apt-get install options] PACKAGE...
+    as_root apt-get update -qq
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@" >/dev/null
+}
+
 install_lavapipe() {
     if ! command -v apt-get >/dev/null 2>&1 || ! grep -qs bookworm /etc/os-release; then
         echo "ocpipe setup: no Vulkan device found and this is not Debian 12." >&2
         echo "  Install Mesa >= 24.3 with its lavapipe Vulkan driver (or a GPU driver) yourself; see README 'Rendering'." >&2
         return 0
     fi
-    local sudo=""
-    [ "$(id -u)" -eq 0 ] || sudo="sudo"
     echo "ocpipe setup: installing Mesa lavapipe from bookworm-backports (Debian 12's Mesa 22.3 cannot render for SAPIEN)"
     if ! grep -rqs bookworm-backports /etc/apt/sources.list /etc/apt/sources.list.d/; then
-        echo "deb http://deb.debian.org/debian bookworm-backports main" | $sudo tee /etc/apt/sources.list.d/ocpipe-backports.list >/dev/null
+        echo "deb http://deb.debian.org/debian bookworm-backports main" | as_root tee /etc/apt/sources.list.d/ocpipe-backports.list >/dev/null
     fi
-    $sudo apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq -t bookworm-backports mesa-vulkan-drivers libvulkan1 >/dev/null
+    apt_install -t bookworm-backports mesa-vulkan-drivers libvulkan1
 }
 
 install_chromium() {
@@ -42,12 +48,9 @@ install_chromium() {
         echo "  Install Chromium and its matching chromedriver yourself to run it; see docs/development.md." >&2
         return 0
     fi
-    local sudo=""
-    [ "$(id -u)" -eq 0 ] || sudo="sudo"
     echo "ocpipe setup: installing chromium and chromium-driver (the report's browser test)"
-    $sudo apt-get update -qq
     # Debian's chromium, not Google Chrome: its driver comes from the same source package, so the versions match
-    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq chromium chromium-driver >/dev/null
+    apt_install chromium chromium-driver
 }
 
 if [ "${OCPIPE_SKIP_VULKAN:-0}" != 1 ] && ! have_vulkan_device; then install_lavapipe; fi
