@@ -151,6 +151,21 @@ def test_a_contact_sheet_spreads_its_steps_and_lays_out_rows_by_columns():
         sheet.contact_sheet(["t"], ["a", "b", "c"], [0, 1, 2, 3, 4, 5], panels[:2], 40)
 
 
+def test_episodes_are_drawn_from_their_recorded_states_and_a_run_without_them_is_named():
+    def steps(seeds, with_state):
+        rows = [{"seed": s, "step": k, "action": [0.1 * k] * 8, **({"state": [float(s + k)] * 3} if with_state else {})}
+                for s in seeds for k in range(3)]
+        return pl.DataFrame(rows)
+    episodes = pl.DataFrame({"seed": [7, 5], "success": [True, False]})
+    records = render.recorded_episodes("PickCube-v1", episodes, steps([7, 5], True), {5}, "run.episodes.parquet")
+    assert list(records) == [5] and records[5].success is False
+    assert records[5].states[:, 0].tolist() == [5.0, 6.0, 7.0]  # exact: small integers as float32
+    with pytest.raises(ValueError, match=r"run.episodes.parquet: seeds \[9\] are not episodes of this run"):
+        render.recorded_episodes("PickCube-v1", episodes, steps([7, 5], True), {5, 9}, "run.episodes.parquet")
+    with pytest.raises(ValueError, match="old.episodes.parquet: its steps file has no 'state' column"):
+        render.recorded_episodes("PickCube-v1", episodes, steps([7, 5], False), {5}, "old.episodes.parquet")
+
+
 def test_a_video_draws_every_stride_th_state_and_the_last():
     assert render.drawn_frames(10, 3) == [0, 3, 6, 9, 10]
     assert render.drawn_frames(9, 3, extra=[4]) == [0, 3, 4, 6, 9]

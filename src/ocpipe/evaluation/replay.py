@@ -11,7 +11,6 @@ step 36 too, and StackCube's at step 50. An evaluation job runs its episodes in 
 episodes file's order, so:
 
   - the first episode of a job replays exactly in a fresh process (`replay`);
-  - any episode replays exactly after the job's earlier episodes (`replay_run`), physics only;
   - a run that recorded the states needs no physics at all to be shown: set each recorded state and draw it (the
     gallery does).
 
@@ -118,14 +117,3 @@ def replay(env, record: EpisodeRecord, on_step: Callable[[ReplayStep], None] | N
         raise ReplayDiverged(f"{record.task} episode seed {record.seed}: recorded success {record.success}, "
                              f"replayed {success}")
     return Replayed(last.state, success, len(record.actions))
-
-
-def replay_run(env, records: list[EpisodeRecord], on_step: Callable[[int, ReplayStep], None] | None = None,
-               check: bool = True) -> list[Replayed]:
-    """Replay an evaluation run's episodes in the order its job ran them (its episodes file's rows), in one fresh
-    ``env``, as that job did: each episode then replays exactly (see the module's docstring). ``on_step(i, step)``
-    is called after each action of episode ``i``; pass only the run's first episodes to stop early."""
-    out = []
-    for i, record in enumerate(records):
-        out.append(replay(env, record, None if on_step is None else (lambda step, i=i: on_step(i, step)), check))
-    return out

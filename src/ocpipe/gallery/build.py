@@ -62,7 +62,7 @@ def build_experiment(exp: str, policy: dict, config: dict, gallery: dict, near_m
         episodes = pl.read_parquet(files[run])
         steps = pl.read_parquet(paths.steps_beside(files[run]))
         wanted = set(group["seed"].to_list())
-        for s, record in render.records_with_states(task, config, episodes, steps, wanted).items():
+        for s, record in render.recorded_episodes(task, episodes, steps, wanted, files[run]).items():
             records[pid, run, s] = record
             steps_of[pid, run, s] = steps.filter(pl.col("seed") == s)
     views = render.Views(policy, config, gallery["resolution"], gallery["viewer_shader"])

@@ -2,11 +2,10 @@
 human render camera on the original robot, sim.envs.make_viewer_env) and the policy's own (evaluation.closed_loop
 .policy_env: its camera set, resolution, shader and low-poly robot), and drawn by both. No physics runs here.
 
-The states come from the run's record (steps file, ``state``); a run recorded before states were kept is replayed
-for them, physics only, in the order its job ran its episodes (evaluation.replay.replay_run: the only order in which
-every episode replays exactly). Setting a state draws the policy's cameras as its evaluation saw them up to the
-link poses' last float bits: a robot link's pose is computed from the joint positions here and integrated there, so
-a pixel on an outline may differ now and then (measured: one pixel, by 2/255, in 2 of 162 frames)."""
+The states come from the run's record (steps file, ``state``); a run recorded before states were kept is refused
+with a clear error, to be evaluated again. Setting a state draws the policy's cameras as its evaluation saw them up
+to the link poses' last float bits: a robot link's pose is computed from the joint positions here and integrated
+there, so a pixel on an outline may differ now and then (measured: one pixel, by 2/255, in 2 of 162 frames)."""
 
 from __future__ import annotations
 
@@ -80,32 +79,19 @@ def drawn_frames(steps: int, stride: int, extra: Iterable[int] = ()) -> list[int
     return sorted({*range(0, steps + 1, stride), steps, *extra})
 
 
-def records_with_states(task: str, config: dict, episodes: pl.DataFrame, steps: pl.DataFrame,
-                        wanted: set[int]) -> dict[int, replay.EpisodeRecord]:
-    """Seed -> the record of each episode in ``wanted`` (seeds) of one evaluation run (its episodes and steps files),
-    with the state after every step: the run's own where it recorded them, else replayed in the order its job ran
-    the episodes (physics only, in a camera-less env, up to the last one wanted), each replayed episode checked
-    against its recorded success flag."""
+def recorded_episodes(task: str, episodes: pl.DataFrame, steps: pl.DataFrame, wanted: set[int],
+                      source: str) -> dict[int, replay.EpisodeRecord]:
+    """Seed -> the record of each episode in ``wanted`` (seeds) of one evaluation run (its episodes and steps files;
+    ``source`` names the episodes file in errors), with the state its evaluation recorded after every step."""
     order = episodes["seed"].to_list()
     missing = wanted - set(order)
     if missing:
-        raise ValueError(f"seeds {sorted(missing)} are not episodes of this run")
+        raise ValueError(f"{source}: seeds {sorted(missing)} are not episodes of this run")
+    if "state" not in steps.columns:
+        # replaying for the states would need each run's episodes in a fresh process, in their order (see
+        # evaluation.replay): rerunning the evaluation costs about the same and keeps one way to draw
+        raise ValueError(f"{source}: its steps file has no 'state' column (evaluated before env states were "
+                         "recorded); rerun this evaluation (snakemake --forcerun on it) to draw its episodes")
     by_seed = {key[0]: group for key, group in steps.group_by(["seed"], maintain_order=True)}
     success = dict(zip(order, episodes["success"].to_list()))
-    records = {s: replay.EpisodeRecord.from_steps(by_seed[s], task, success[s]) for s in order}
-    if "state" in steps.columns:
-        return {s: records[s] for s in wanted}
-    run = [records[s] for s in order[: max(order.index(s) for s in wanted) + 1]]
-    states: dict[int, list[np.ndarray]] = {s: [] for s in wanted}
-
-    def keep(i: int, step: replay.ReplayStep) -> None:
-        if run[i].seed in states:
-            states[run[i].seed].append(step.state)
-
-    env = envs.make_env(task, config)
-    try:
-        replay.replay_run(env, run, keep)
-    finally:
-        env.close()
-    return {s: replay.EpisodeRecord(task, s, records[s].actions, np.stack(states[s]), records[s].success)
-            for s in wanted}
+    return {s: replay.EpisodeRecord.from_steps(by_seed[s], task, success[s]) for s in sorted(wanted)}
