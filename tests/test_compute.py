@@ -75,12 +75,13 @@ def test_wall_time_spans_first_start_to_last_end(bench):
 
 
 def test_write_names_the_run_and_an_empty_folder_is_an_error(default_config, bench, tmp_path):
-    compute.write(default_config, bench, tmp_path / "c.csv", tmp_path / "c.md", cores=2)
+    compute.write(default_config, bench, tmp_path / "c.csv", tmp_path / "c.md", cores=2, workdir=tmp_path)
     text = (tmp_path / "c.md").read_text()
     assert "| goal2d |" in text and "wall time 33.3 min" in text
     # 43.2 core-minutes in 33.3 wall minutes (rounded as printed) on 2 cores: 43.2 / 66.6 = 64.9 %
     assert "utilisation 65 % of 2 cores" in text
-    compute.write(default_config, bench, tmp_path / "c.csv", tmp_path / "c.md", cores=None)  # a cluster run
+    compute.write(default_config, bench, tmp_path / "c.csv", tmp_path / "c.md", cores=None,  # a cluster run
+                  workdir=tmp_path)
     assert "utilisation not known" in (tmp_path / "c.md").read_text()
     core = pl.read_csv(tmp_path / "c.csv")["core_min"]
     # derived: each row is a whole tenth (CPU seconds in multiples of 6) written to 4 decimals, so the CSV sum differs
@@ -160,3 +161,45 @@ def test_the_committed_record_is_a_whole_run_of_a_named_commit_and_readme_shows_
     readme = (REPO / "README.md").read_text()
     assert "<!-- record: table5_1.md -->" in readme and "<!-- record: findings.md -->" in readme
     assert record.fill_marked(readme, rec) == readme  # README's Results blocks are the record's own files
+
+
+# on 2 cores, features (2 threads) is ready when frames finishes at 10:01:00 and waits while train holds one core
+# to 10:02:30: 1 idle core x 90 s = 1.5 core-minutes
+WAITING_LOG = """Provided cores: 2
+[Sun Dec  6 10:00:00 2026]
+localrule frames:
+    output: results/frames/a.zarr
+    jobid: 1
+[Sun Dec  6 10:00:00 2026]
+rule train:
+    output: results/runs/t/checkpoints
+    jobid: 2
+    threads: 1
+[Sun Dec  6 10:01:00 2026]
+Finished jobid: 1 (Rule: frames)
+[Sun Dec  6 10:02:30 2026]
+Finished jobid: 2 (Rule: train)
+[Sun Dec  6 10:02:30 2026]
+localrule features:
+    input: results/frames/a.zarr
+    output: results/features/a.zarr
+    jobid: 3
+    wildcards: store=a
+    threads: 2
+[Sun Dec  6 10:04:00 2026]
+Finished jobid: 3 (Rule: features)
+"""
+
+
+def test_the_table_says_how_long_two_thread_jobs_waited_with_a_core_idle_or_that_no_log_tells(default_config, bench,
+                                                                                               tmp_path):
+    md = tmp_path / "c.md"
+    compute.write(default_config, bench, tmp_path / "c.csv", md, cores=2, workdir=tmp_path)
+    assert "jobs of 2+ threads waiting with a core idle: not known (no run log names its cores)" in md.read_text()
+    log = tmp_path / ".snakemake" / "log" / "2026-12-06T100000.snakemake.log"
+    log.parent.mkdir(parents=True)
+    log.write_text(WAITING_LOG)
+    compute.write(default_config, bench, tmp_path / "c.csv", md, cores=2, workdir=tmp_path)
+    assert ("utilisation 65 % of 2 cores (core-minutes / (cores x wall time)); jobs of 2+ threads waited with a core "
+            "idle: 1.5 core-minutes (1 of 1 such jobs: features store=a: 90 core-s in a 90 s wait; run log "
+            "2026-12-06T100000.snakemake.log)") in md.read_text()

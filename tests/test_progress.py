@@ -244,3 +244,88 @@ def test_utilisation_so_far_counts_finished_jobs_and_running_ones_at_the_finishe
     half = progress.utilisation_so_far(seen, {1: (60.0, 30.0), 2: (300.0, 150.0)}, datetime(2026, 12, 2, 18, 6), 2)
     assert half == pytest.approx((30 + 150 + 0.5 * 300) / (2 * 360))  # derived: as above
     assert progress.utilisation_so_far(seen, {}, datetime(2026, 12, 2, 18, 6), 2) is None  # nothing finished yet
+
+
+def test_a_jobs_threads_inputs_and_outputs_are_read_and_default_to_one_thread_and_none():
+    run = progress.parse_text(LOG)
+    train, stability = run.jobs[1], run.jobs[2]
+    assert (train.threads, train.inputs, train.outputs) == (1, ("results/features/a.zarr",),
+                                                            ("results/runs/a/checkpoints",))
+    assert (stability.threads, stability.inputs, stability.outputs) == (1, (), ())
+    two = progress.parse_text("[Sun Dec  6 20:05:10 2026]\nlocalrule features:\n"
+                              "    input: results/frames/s.zarr, results/encoders/slots_ssl/model.pt\n"
+                              "    output: results/features/s.zarr\n    jobid: 4\n    threads: 2\n")
+    assert (two.jobs[4].threads, two.jobs[4].inputs) == (2, ("results/frames/s.zarr",
+                                                             "results/encoders/slots_ssl/model.pt"))
+    assert two.last_at == datetime(2026, 12, 6, 20, 5, 10)
+
+
+def _job(time, rule, jobid, inputs="", outputs="", threads=1, wildcards=""):
+    """A job's start as Snakemake logs it."""
+    fields = {"input": inputs, "output": outputs, "jobid": jobid, "wildcards": wildcards, "threads": threads}
+    return f"[{time}]\nlocalrule {rule}:\n" + "".join(f"    {k}: {v}\n" for k, v in fields.items() if v)
+
+
+def _done(time, rule, jobid):
+    return f"[{time}]\nFinished jobid: {jobid} (Rule: {rule})\n"
+
+
+# on 2 cores: frames (1 thread) makes a.zarr by 10:01:00 while scenes (1 thread) runs to 10:04:00; features x and y
+# (2 threads each) need a.zarr, so both are ready at 10:01:00 and wait with one core idle until scenes finishes
+WAITING_LOG = ("Provided cores: 2\n"
+               + _job("Sun Dec  6 10:00:00 2026", "frames", 1, outputs="results/frames/a.zarr")
+               + _job("Sun Dec  6 10:00:00 2026", "scenes", 2, inputs="results/demos/old.h5",
+                      outputs="results/scenes/b.zarr")
+               + _done("Sun Dec  6 10:01:00 2026", "frames", 1)
+               + _done("Sun Dec  6 10:04:00 2026", "scenes", 2)
+               + _job("Sun Dec  6 10:04:00 2026", "features", 3, "results/frames/a.zarr, results/encoders/m.pt",
+                      "results/features/x.zarr", 2, "store=x")
+               + _done("Sun Dec  6 10:06:00 2026", "features", 3)
+               + _job("Sun Dec  6 10:06:00 2026", "features", 4, "results/frames/a.zarr", "results/features/y.zarr",
+                      2, "store=y")
+               + _done("Sun Dec  6 10:08:00 2026", "features", 4))
+
+
+def test_a_two_thread_job_ready_while_one_core_idles_is_charged_the_idle_core_time():
+    waits = progress.idle_waits(progress.parse_text(WAITING_LOG), cores=2)
+    # x: ready 10:01:00, started 10:04:00; scenes held one core of two all along: 1 idle core x 180 s
+    # y: ready 10:01:00, started 10:06:00; the same 180 s, then x held both cores (10:04-10:06): nothing idle
+    assert waits.jobs == [progress.Wait("features store=x", 180.0, 180.0),
+                          progress.Wait("features store=y", 300.0, 180.0)]
+    assert waits.wide_jobs == 2
+    assert waits.core_seconds == 180.0  # x and y waited through the same idle core: counted once, not 360
+
+
+def test_a_two_thread_job_that_starts_when_ready_waits_for_nothing():
+    # its input was made before this run (no job here outputs old.zarr): ready at the run's start, and started
+    # then; the 1-thread scenes job after it is not one the rule is about
+    log = ("Provided cores: 2\n"
+           + _job("Sun Dec  6 10:00:00 2026", "features", 1, "results/frames/old.zarr", "results/features/x.zarr", 2)
+           + _done("Sun Dec  6 10:02:00 2026", "features", 1)
+           + _job("Sun Dec  6 10:02:00 2026", "scenes", 2, "results/features/x.zarr", "results/scenes/x.zarr")
+           + _done("Sun Dec  6 10:03:00 2026", "scenes", 2))
+    waits = progress.idle_waits(progress.parse_text(log), cores=2)
+    assert (waits.core_seconds, waits.jobs, waits.wide_jobs) == (0.0, [], 1)
+
+
+def test_a_job_with_no_finish_holds_its_core_to_the_logs_last_timestamp():
+    # on 3 cores, train (1 thread) never finishes in this cut-off log; features (2 threads) is ready at 10:01:00 and
+    # starts at 10:02:00: train holds one core, so 2 idle cores x 60 s (3 x 60 if train were taken as gone)
+    log = ("Provided cores: 3\n"
+           + _job("Sun Dec  6 10:00:00 2026", "frames", 1, outputs="results/frames/a.zarr")
+           + _job("Sun Dec  6 10:00:00 2026", "train", 2, outputs="results/runs/t")
+           + _done("Sun Dec  6 10:01:00 2026", "frames", 1)
+           + _job("Sun Dec  6 10:02:00 2026", "features", 3, "results/frames/a.zarr", "results/features/a.zarr", 2)
+           + _done("Sun Dec  6 10:03:00 2026", "features", 3))
+    run = progress.parse_text(log)
+    assert run.last_at == datetime(2026, 12, 6, 10, 3)
+    assert progress.idle_waits(run, cores=3).core_seconds == 120.0
+
+
+def test_the_log_with_the_cores_is_the_newest_that_names_them(tmp_path):
+    assert progress.cores_log(tmp_path) is None
+    logs = tmp_path / ".snakemake" / "log"
+    logs.mkdir(parents=True)
+    (logs / "2026-12-06T100000.snakemake.log").write_text(WAITING_LOG)
+    (logs / "2026-12-07T100000.snakemake.log").write_text(LOG)  # a later dry run: no core count
+    assert progress.cores_log(tmp_path) == logs / "2026-12-06T100000.snakemake.log"

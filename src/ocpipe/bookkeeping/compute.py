@@ -6,7 +6,9 @@ then add up in config order: each is charged what it builds first, so the per-ta
 Core-minutes are the CPU time Snakemake measured for the job's process tree; job-minutes its wall time. The run's
 wall time spans the first job's start (a file's modification time less its seconds) to the last job's end, and its
 utilisation is core-minutes / (cores x wall time): the share of the cores the run kept busy (a results folder built
-by several runs counts the pauses between them as idle)."""
+by several runs counts the pauses between them as idle). Beside it stands the rule "no job of two threads may wait
+while a core idles", measured on the newest run log that names its cores (progress.idle_waits): the core-minutes left
+idle while a job of more than one thread was ready and waiting, and the jobs that waited so."""
 
 from __future__ import annotations
 
@@ -147,9 +149,24 @@ def utilisation(jobs: pl.DataFrame, cores: int) -> float:
     return jobs["cpu_seconds"].sum() / 60 / (cores * wall_minutes(jobs))
 
 
-def write(config: dict, bench_dir, csv_path, md_path, cores: int | None) -> pl.DataFrame:
+def idle_wait_text(workdir) -> str:
+    """The compute table's words on jobs of 2+ threads that waited while a core idled, from the newest run log
+    in ``workdir`` that names its cores (where the utilisation's cores come from), on that run's own cores."""
+    from . import progress  # progress imports this module (benchmark_times): imported once both exist
+
+    log = progress.cores_log(workdir)
+    if log is None:
+        return "jobs of 2+ threads waiting with a core idle: not known (no run log names its cores)"
+    waits = progress.idle_waits(progress.parse(log), progress.provided_cores(log))
+    who = "; ".join(f"{w.job}: {w.idle_core_seconds:.0f} core-s in a {w.waited_seconds:.0f} s wait" for w in waits.jobs)
+    return (f"jobs of 2+ threads waited with a core idle: {waits.core_seconds / 60:.1f} core-minutes "
+            f"({len(waits.jobs)} of {waits.wide_jobs} such jobs{': ' + who if who else ''}; run log {log.name})")
+
+
+def write(config: dict, bench_dir, csv_path, md_path, cores: int | None, workdir=None) -> pl.DataFrame:
     """The compute table of the run whose benchmark files are under ``bench_dir``, run on ``cores`` cores (None:
-    not known, as on a cluster; then no utilisation)."""
+    not known, as on a cluster; then no utilisation). ``workdir`` holds the run logs (.snakemake/log); by default
+    the folder above the results folder, as ``bench_dir`` is ``results/benchmarks``."""
     jobs = read_jobs(bench_dir)
     by_stage = charged(jobs)
     totals = by_stage.group_by("kind", "what", maintain_order=True).agg(pl.col("job_min", "core_min").sum())
@@ -165,6 +182,7 @@ def write(config: dict, bench_dir, csv_path, md_path, cores: int | None) -> pl.D
               f"job's end, from {bench_dir}'s files); "
               + (f"utilisation {100 * utilisation(jobs, cores):.0f} % of {cores} cores (core-minutes / (cores x "
                  "wall time))" if cores else "utilisation not known (the run log names no core count)")
+              + f"; {idle_wait_text(workdir or Path(bench_dir).resolve().parent.parent)}"
               + f". Profile {config.get('profile', '?')}.")
     text = "\n".join(parts) + f"\n{footer}\n"
     with atomic_path(md_path) as tmp:

@@ -44,6 +44,7 @@ FINISHED = re.compile(r"^(?:\[(?P<date>[^\]]+)\]\n)?Finished jobid: (?P<id>\d+) 
                       re.MULTILINE)
 STEPS = re.compile(r"^(?P<done>\d+) of (?P<total>\d+) steps \(\d+%\) done", re.MULTILINE)
 FIELD = re.compile(r"^\s+(?P<key>\w+): (?P<value>.*)$", re.MULTILINE)
+STAMP = re.compile(r"^\[(?P<date>[^\]]+)\]$", re.MULTILINE)  # a line of its own: each event's time
 RULE_TIMES = Path("docs", "results", "rule_times.csv")  # a recorded run's per-rule CPU time, under the workdir
 # wildcards that tell apart jobs of one cost: a policy's replicate (@k), a store's shard, a stability run, a swept
 # checkpoint
@@ -58,6 +59,9 @@ class Job:
     wildcards: str = ""
     log: str | None = None
     benchmark: str | None = None
+    threads: int = 1  # the log's `threads:` line, which Snakemake leaves out for a job of one thread
+    inputs: tuple[str, ...] = ()
+    outputs: tuple[str, ...] = ()
 
     @property
     def kind(self) -> str:
@@ -76,6 +80,12 @@ class Run:
     command: str | None = None  # the command line that started the run
     done: int = 0
     total: int = 0
+    last_at: datetime | None = None  # the log's last timestamp: as far as it vouches for the run
+
+
+def _paths(value: str | None) -> tuple[str, ...]:
+    """A log's ``input:`` or ``output:`` value -> its paths (Snakemake joins them with ", ")."""
+    return tuple(p.strip() for p in value.split(",") if p.strip()) if value else ()
 
 
 def newest_log(workdir) -> Path:
@@ -94,16 +104,23 @@ def provided_cores(log: Path) -> int:
     return int(found[1])
 
 
-def run_cores(workdir) -> int | None:
-    """The cores the newest run in ``workdir`` that names them was given (a dry run or a `--report` call writes a
-    log without); None where no log names any (a run on a cluster executor gives no core count, and Snakemake's
-    own `workflow.cores` raises there)."""
+def cores_log(workdir) -> Path | None:
+    """The newest run log in ``workdir`` that names its cores (a dry run or a `--report` call writes a log
+    without); None where no log names any (a run on a cluster executor gives no core count)."""
     for log in sorted(Path(workdir, ".snakemake", "log").glob("*.snakemake.log"), reverse=True):
         try:
-            return provided_cores(log)
+            provided_cores(log)
         except ValueError:
             continue
+        return log
     return None
+
+
+def run_cores(workdir) -> int | None:
+    """The cores the newest run in ``workdir`` that names them was given (cores_log); None where no log names any
+    (Snakemake's own `workflow.cores` raises on a cluster executor, so the log is what tells)."""
+    log = cores_log(workdir)
+    return None if log is None else provided_cores(log)
 
 
 def _date(text: str) -> datetime | None:
@@ -133,12 +150,15 @@ def parse_text(text: str, log: Path | None = None) -> Run:
         if "jobid" not in fields:
             continue
         job = Job(m["rule"], int(fields["jobid"]), _date(m["date"]), fields.get("wildcards", ""),
-                  fields.get("log"), fields.get("benchmark"))
+                  fields.get("log"), fields.get("benchmark"), int(fields.get("threads", 1)),
+                  _paths(fields.get("input")), _paths(fields.get("output")))
         run.jobs[job.jobid] = job
     for m in FINISHED.finditer(text):
         run.finished.add(int(m["id"]))
         if m["date"] and _date(m["date"]):
             run.finished_at[int(m["id"])] = _date(m["date"])
+    stamps = [d for d in (_date(m["date"]) for m in STAMP.finditer(text)) if d]
+    run.last_at = max(stamps, default=None)
     command = re.search(r"^\s*Command: (?P<cmd>.+)$", text, re.MULTILINE)
     run.command = command["cmd"].strip() if command else None
     steps = list(STEPS.finditer(text))
@@ -200,6 +220,96 @@ def utilisation_so_far(run: Run, times: dict[int, tuple[float, float]], now: dat
     used = sum(cpu for _, cpu in times.values())
     used += statistics.median(ratios) * sum((now - j.started).total_seconds() for j in running)
     return min(1.0, used / (max(cores, 1) * (now - min(starts)).total_seconds()))
+
+
+@dataclass(frozen=True)
+class Wait:
+    """A job of more than one thread that was ready while a core stood idle."""
+
+    job: str  # its rule and wildcards
+    waited_seconds: float  # from ready to its start
+    idle_core_seconds: float  # the idle cores over that time
+
+
+@dataclass
+class IdleWaits:
+    """What a run's jobs of more than one thread cost it in idle cores while they waited."""
+
+    core_seconds: float = 0.0  # idle core time while any of them waited; a moment two waited through counts once
+    jobs: list[Wait] = field(default_factory=list)  # those that waited with a core idle, in order of start
+    wide_jobs: int = 0  # the run's jobs of more than one thread, whether they waited or not
+
+
+def _spans(run: Run, cores: int) -> list[tuple[datetime, datetime, int]]:
+    """(start, end, threads) of each started job: a job without a finish time holds its threads to the log's last
+    timestamp, as far as the log can tell; its threads at most the cores, as Snakemake runs it."""
+    spans = []
+    for job in run.jobs.values():
+        end = run.finished_at.get(job.jobid, run.last_at)
+        if job.started and end:
+            spans.append((job.started, end, min(job.threads, cores)))
+    return spans
+
+
+def ready_at(run: Run, job: Job, maker: dict[str, int]) -> datetime | None:
+    """When all of ``job``'s inputs were there: the last finish among the run's jobs that made any of them
+    (``maker``: output path -> jobid), the run's start where this run made none; None where a maker's finish is
+    not in the log."""
+    finishes = [run.finished_at.get(maker[p]) for p in job.inputs if p in maker]
+    if not finishes:
+        return run.started
+    return None if None in finishes else max(finishes)
+
+
+def idle_core_seconds(spans: list[tuple[datetime, datetime, int]], cores: int, start: datetime, end: datetime
+                      ) -> float:
+    """The cores left idle from ``start`` to ``end``: at each moment, the cores less the threads of the jobs
+    running then, counted where at least one core is idle (a job of two threads on two cores needs both free, so
+    one idle core is what such a wait leaves unused)."""
+    cuts = sorted({start, end} | {t for s, e, _ in spans for t in (s, e) if start < t < end})
+    idle = 0.0
+    for a, b in zip(cuts, cuts[1:]):
+        free = cores - sum(n for s, e, n in spans if s <= a < e)
+        if free >= 1:
+            idle += free * (b - a).total_seconds()
+    return idle
+
+
+def _merged(intervals: list[tuple[datetime, datetime]]) -> list[tuple[datetime, datetime]]:
+    """Overlapping intervals joined, so that time two jobs waited through is counted once."""
+    out: list[tuple[datetime, datetime]] = []
+    for a, b in sorted(intervals):
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
+def idle_waits(run: Run, cores: int) -> IdleWaits:
+    """How far the run broke "no job of two threads may wait while a core idles": each job of more than one
+    thread waited from ready (ready_at) to its start, and the cores idle meanwhile (idle_core_seconds) are what
+    that wait cost. A job without a finish time (a run cut off, or one still going) counts as running up to the
+    log's last timestamp; a job that had not started is not in the log, so a wait still going is left out, and so
+    is a job whose inputs' maker has no finish time in the log. The total counts each moment once, so where two
+    jobs waited at once it is less than the sum of their own figures."""
+    maker = {path: i for i, job in run.jobs.items() for path in job.outputs}
+    spans = _spans(run, cores)
+    result, waiting = IdleWaits(), []
+    for job in sorted(run.jobs.values(), key=lambda j: (j.started or datetime.min, j.jobid)):
+        if job.threads <= 1 or job.started is None:
+            continue
+        result.wide_jobs += 1
+        ready = ready_at(run, job, maker)
+        if ready is None or ready >= job.started:
+            continue
+        waiting.append((ready, job.started))
+        idle = idle_core_seconds(spans, cores, ready, job.started)
+        if idle > 0:
+            waited = (job.started - ready).total_seconds()
+            result.jobs.append(Wait(f"{job.rule} {job.wildcards}".strip(), waited, idle))
+    result.core_seconds = sum(idle_core_seconds(spans, cores, a, b) for a, b in _merged(waiting))
+    return result
 
 
 def _medians(run: Run, cpu: dict[int, float], key) -> dict[str, float]:
