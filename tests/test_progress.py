@@ -328,4 +328,4 @@ def test_the_log_with_the_cores_is_the_newest_that_names_them(tmp_path):
     logs.mkdir(parents=True)
     (logs / "2026-12-06T100000.snakemake.log").write_text(WAITING_LOG)
     (logs / "2026-12-07T100000.snakemake.log").write_text(LOG)  # a later dry run: no core count
-    assert progress.cores_log(tmp_path) == logs / "2026-12-06T100000.snakemake.log"
+    assert progress.cores_log(tmp_path) == (logs / "2026-12-06T100000.snakemake.log", 2)

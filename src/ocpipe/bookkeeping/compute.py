@@ -154,10 +154,11 @@ def idle_wait_text(workdir) -> str:
     in ``workdir`` that names its cores (where the utilisation's cores come from), on that run's own cores."""
     from . import progress  # progress imports this module (benchmark_times): imported once both exist
 
-    log = progress.cores_log(workdir)
-    if log is None:
+    found = progress.cores_log(workdir)
+    if found is None:
         return "jobs of 2+ threads waiting with a core idle: not known (no run log names its cores)"
-    waits = progress.idle_waits(progress.parse(log), progress.provided_cores(log))
+    log, cores = found
+    waits = progress.idle_waits(progress.parse(log), cores)
     who = "; ".join(f"{w.job}: {w.idle_core_seconds:.0f} core-s in a {w.waited_seconds:.0f} s wait" for w in waits.jobs)
     return (f"jobs of 2+ threads waited with a core idle: {waits.core_seconds / 60:.1f} core-minutes "
             f"({len(waits.jobs)} of {waits.wide_jobs} such jobs{': ' + who if who else ''}; run log {log.name})")

@@ -104,23 +104,22 @@ def provided_cores(log: Path) -> int:
     return int(found[1])
 
 
-def cores_log(workdir) -> Path | None:
+def cores_log(workdir) -> tuple[Path, int] | None:
     """The newest run log in ``workdir`` that names its cores (a dry run or a `--report` call writes a log
-    without); None where no log names any (a run on a cluster executor gives no core count)."""
+    without), and those cores; None where no log names any (a run on a cluster executor gives no core count)."""
     for log in sorted(Path(workdir, ".snakemake", "log").glob("*.snakemake.log"), reverse=True):
         try:
-            provided_cores(log)
+            return log, provided_cores(log)
         except ValueError:
             continue
-        return log
     return None
 
 
 def run_cores(workdir) -> int | None:
     """The cores the newest run in ``workdir`` that names them was given (cores_log); None where no log names any
     (Snakemake's own `workflow.cores` raises on a cluster executor, so the log is what tells)."""
-    log = cores_log(workdir)
-    return None if log is None else provided_cores(log)
+    found = cores_log(workdir)
+    return None if found is None else found[1]
 
 
 def _date(text: str) -> datetime | None:
