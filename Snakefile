@@ -48,6 +48,7 @@ rule spatial_grounding:
         f"{paths.TABLE_DIR}/findings_main.csv",
         expand(paths.FIGURE, figure=registry.SPATIAL_FIGURES),
         [paths.features_diagnostics(s) for s in targets.image_stores(config, registry.SPATIAL_FIGURES_TABLE)],
+        built_gallery("main"),  # none on a first build; kept up to date, and in its report, once drawn
 
 
 rule encodings:
@@ -72,13 +73,21 @@ rule stackcube:
         expand(f"{paths.TABLE}.csv", table=registry.tables_in("stackcube")),
         f"{paths.TABLE_DIR}/findings_stackcube.csv",
         expand(paths.FIGURE, figure=registry.figures_in("stackcube")),
+        built_gallery("stackcube"),
 
 
 rule gallery:
-    """Evaluated episodes to watch: for each row of Tables 5.1/5.2 and 5.10/5.11 and each failure class among its
-    episodes, `gallery.episodes_per_class` episodes replayed as videos and a contact sheet (results/gallery/{exp}/)."""
+    """Evaluated episodes to watch, after the main job: for each row of Tables 5.1/5.2 and each failure class among
+    its episodes, `gallery.episodes_per_class` episodes drawn as videos and a contact sheet (results/gallery/{exp}/).
+    """
     input:
-        gallery_targets(),
+        gallery_targets("main"),
+
+
+rule gallery_stackcube:
+    """The same for the rows of Tables 5.10/5.11, after `stackcube`."""
+    input:
+        gallery_targets("stackcube"),
 
 
 rule two_builds:
@@ -99,6 +108,7 @@ rule compute:
         rules.stackcube.input,
         f"{paths.TABLE_DIR}/findings.csv",
         rules.gallery.input,
+        rules.gallery_stackcube.input,
     output:
         csv=report(
             f"{paths.TABLE_DIR}/compute.csv",

@@ -68,10 +68,25 @@ def test_the_gallery_covers_the_main_jobs_and_stackcubes_rows(default_config):
     assert rows["stack_aligned"] == {"table5_10": "Aligned (base + side, 2D goal)",
                                      "table5_11": "Aligned (base + side, 2D goal)"}
     assert set(rows) == {"pure_visual", "goal2d", "goal3d", "state_control", "stack_native", "stack_aligned"}
+    assert set(selection.rows(default_config, ("main",))) == {"pure_visual", "goal2d", "goal3d", "state_control"}
+    assert set(selection.rows(default_config, ("stackcube",))) == {"stack_native", "stack_aligned"}
+    with pytest.raises(ValueError, match=r"no scope \['ablations'\]"):
+        selection.rows(default_config, ("ablations",))
     assert selection.row_title(rows["goal2d"]) == "Tables 5.1, 5.2: 2D-Spatial-Proj"
     assert selection.row_title(rows["stack_native"]) == "Table 5.10: Native (base + hand, no goal)"
     assert [selection.class_of_slug(selection.slug(c)) for c in CLASSES] == list(CLASSES)
     assert selection.video_label("near_miss", "3", "10244") == {"item": "Near Miss: policy 3, seed 10244"}
+
+
+def test_a_group_target_lists_a_rows_gallery_once_every_part_of_it_is_there(tmp_path):
+    assert selection.outputs(["goal2d"]) == ["results/gallery/goal2d/videos", "results/gallery/goal2d/sheets",
+                                             "results/gallery/goal2d/episodes.csv"]
+    assert selection.built(["goal2d", "goal3d"], tmp_path) == []
+    (tmp_path / "results/gallery/goal2d/videos").mkdir(parents=True)
+    (tmp_path / "results/gallery/goal2d/sheets").mkdir()
+    assert selection.built(["goal2d", "goal3d"], tmp_path) == []  # no manifest yet: a job that did not finish
+    (tmp_path / "results/gallery/goal2d/episodes.csv").write_text("row\n")
+    assert selection.built(["goal2d", "goal3d"], tmp_path) == selection.outputs(["goal2d"])
 
 
 def one_episode(grasped, tcp_goal, obj_goal, gripper) -> pl.DataFrame:
@@ -92,13 +107,15 @@ def test_a_near_miss_names_its_closest_approach_and_a_drop_where_the_grasp_was_l
     assert overlay.episode_facts(steps, "No Grasp").deciding_step is None
     lines = overlay.frame_lines("Tables 5.1, 5.2: 2D", "Drop", "goal2d@1", 7, 2, drop, 0.10)
     assert lines[1] == "Drop | policy goal2d@1 | seed 7"
-    assert lines[2] == "step 2/5 | gripper commanded closed | grasped yes"  # action 1 closed it; observation 2 holds
-    assert lines[3] == "TCP-goal 0.050 m, object-goal 0.120 m"
-    assert lines[4] == "grasp lost at step 3: object 0.400 m from the goal"
-    assert "Near Miss: < 0.1 m" in overlay.frame_lines("r", "Near Miss", "p", 7, 0, near, 0.10)[4]
-    assert overlay.frame_lines("r", "Drop", "p", 7, 0, drop, 0.1)[2] == "step 0/5 | gripper commanded - | grasped no"
+    assert lines[2] == "grasp lost at step 3: object 0.400 m from the goal"
+    assert lines[3] == "step 2/5 | gripper commanded closed | grasped yes"  # action 1 closed it; observation 2 holds
+    assert lines[4] == "TCP-goal 0.050 m, object-goal 0.120 m"
+    assert "Near Miss: < 0.1 m" in overlay.frame_lines("r", "Near Miss", "p", 7, 0, near, 0.10)[2]
+    assert overlay.frame_lines("r", "Drop", "p", 7, 0, drop, 0.1)[3] == "step 0/5 | gripper commanded - | grasped no"
     last = overlay.frame_lines("r", "Drop", "p", 7, 5, drop, 0.1)
-    assert last[2].endswith("grasped not observed") and "not observed" in last[3]
+    assert last[3].endswith("grasped not observed") and "not observed" in last[4]
+    # a class decided by no single step has no such line
+    assert len(overlay.frame_lines("r", "No Grasp", "p", 7, 0, drop, 0.1)) == 4
     with pytest.raises(ValueError, match="frame 6 of an episode of 5 steps"):
         overlay.frame_lines("r", "Drop", "p", 7, 6, drop, 0.1)
     with pytest.raises(ValueError, match="classed Drop but its record never lets go"):
@@ -113,6 +130,18 @@ def test_captions_wrap_to_the_frame_and_keep_their_line_count():
     draw = ImageDraw.Draw(Image.new("RGB", (1, 1)))
     assert all(draw.textlength(line, font=overlay._font()) <= 200 for line in lines[:-1])
     assert overlay.wrap(["a b", "", "c"], 200) == ["a b", "", "c"]
+
+
+def test_the_longest_real_caption_keeps_its_deciding_line_at_the_gallerys_width(default_config):
+    """The widest row title and class line, the Near Miss line and the last frame's, at the default resolution and
+    at a smaller one, where the lines after the class wrap and the caption is cut."""
+    title = max((selection.row_title(t) for t in selection.rows(default_config).values()), key=len)
+    near = overlay.episode_facts(one_episode([False] * 200, [0.5] * 199 + [0.123], [0.5] * 200, [1.0] * 200),
+                                 "Near Miss")
+    lines = overlay.frame_lines(title, "Near Miss", "stack_aligned@4", 10945, 200, near, 0.05)
+    for size in (default_config["gallery"]["resolution"], 200):
+        wrapped = overlay.wrap(lines, size + size // 2 - 2 * overlay.MARGIN)
+        assert "closest TCP-goal 0.123 m at step 199 (Near Miss: < 0.05 m)" in wrapped, (size, wrapped)
 
 
 def test_a_frame_puts_the_viewer_left_the_policys_views_right_and_the_caption_below():
@@ -135,6 +164,14 @@ def test_a_contact_sheet_spreads_its_steps_and_lays_out_rows_by_columns():
     assert sheet.sheet_steps(3, 6) == [0, 1, 2, 3]  # an episode shorter than the sheet: each frame once
     with pytest.raises(ValueError, match="at least 2"):
         sheet.sheet_steps(10, 1)
+    # the step that decided the class replaces the nearest inner frame (ties: the earlier), never the first or last
+    assert sheet.sheet_steps(150, 6, deciding=47) == [0, 30, 47, 90, 120, 150]
+    assert sheet.sheet_steps(150, 6, deciding=45) == [0, 45, 60, 90, 120, 150]
+    assert sheet.sheet_steps(150, 6, deciding=149) == [0, 30, 60, 90, 149, 150]
+    assert sheet.sheet_steps(150, 6, deciding=60) == [0, 30, 60, 90, 120, 150]
+    assert sheet.sheet_steps(10, 2, deciding=4) == [0, 4, 10]
+    with pytest.raises(ValueError, match="deciding step 151 is outside the episode's steps 0..150"):
+        sheet.sheet_steps(150, 6, deciding=151)
     grid = sheet.layout(3, 6, 40)
     assert grid.width == sheet.LABEL_WIDTH + sheet.GAP + 6 * (40 + sheet.GAP)
     assert grid.height == sheet.TITLE_HEIGHT + sheet.HEADER_HEIGHT + 3 * (40 + sheet.GAP)

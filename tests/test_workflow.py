@@ -374,6 +374,22 @@ def test_dry_run_of_all_audits_the_whole_study_on_both_configs(tmp_path):
     assert priority[("train", "exp=goal2d")] == priority[("train", "exp=state_control")] == 0
 
 
+def test_the_main_job_draws_no_gallery_until_asked_and_then_keeps_it_in_its_report(tmp_path):
+    def galleries(*target):
+        out = snakemake(tmp_path, "-n", *target).stdout
+        return set(re.findall(r"rule gallery_experiment:\n(?:    .*\n)*?    wildcards: exp=(\w+)", out))
+
+    assert galleries("spatial_grounding") == set()
+    assert galleries("gallery") == {"pure_visual", "goal2d", "goal3d", "state_control"}  # the main job's rows only
+    assert galleries("gallery_stackcube") == {"stack_native", "stack_aligned"}
+    assert galleries("all") == {"pure_visual", "goal2d", "goal3d", "state_control", "stack_native", "stack_aligned"}
+    # once a row's gallery is drawn, the main job lists it (so its report shows it), and only that row's
+    for part in ("videos", "sheets"):
+        (tmp_path / "results" / "gallery" / "goal2d" / part).mkdir(parents=True)
+    (tmp_path / "results" / "gallery" / "goal2d" / "episodes.csv").write_text("row\n")
+    assert galleries("spatial_grounding") == {"goal2d"}
+
+
 def test_a_baseline_lever_reads_its_experiments_run_instead_of_training_a_copy(tmp_path):
     levers = yaml.safe_load((REPO / "config" / "config.yaml").read_text())["levers"]
     sets = {name: levers["sets"][name] for name in levers["build"]}

@@ -251,10 +251,11 @@ def gallery_group(w):
     return gallery_selection.row_title(GALLERY_ROWS[w.exp])
 
 
-def gallery_targets():
-    """Every experiment's gallery of the rows the gallery covers."""
-    return [
-        f
-        for exp in GALLERY_ROWS
-        for f in expand(f"{paths.GALLERY}/{{part}}", exp=exp, part=("videos", "sheets", "episodes.csv"))
-    ]
+def gallery_targets(scope):
+    """The galleries of a group target's rows (gallery_selection.SCOPES: `main` or `stackcube`)."""
+    return gallery_selection.outputs(gallery_selection.rows(config, (scope,)))
+
+
+def built_gallery(scope):
+    """The part of gallery_targets(scope) already drawn: its group target lists it, so its report shows it."""
+    return gallery_selection.built(gallery_selection.rows(config, (scope,)))

@@ -93,7 +93,7 @@ def _episode(pick: dict, record, steps: pl.DataFrame, views: render.Views, encod
     facts = overlay.episode_facts(steps, failure_class)
     n = facts.steps
     with_sheet = pick["n"] == 0
-    sheet_steps = sheet.sheet_steps(n, gallery["sheet_frames"]) if with_sheet else []
+    sheet_steps = sheet.sheet_steps(n, gallery["sheet_frames"], facts.deciding_step) if with_sheet else []
     drawn = render.drawn_frames(n, gallery["frame_stride"], sheet_steps)
     frames, panels = [], {}
     for k, viewer, views_seen in views.frames(record, drawn):
@@ -104,14 +104,17 @@ def _episode(pick: dict, record, steps: pl.DataFrame, views: render.Views, encod
         if k in sheet_steps:
             panels[k] = (viewer, views_seen)
     name = f"{selection.slug(failure_class)}-{paths.split_policy(pid)[1]}-{seed}"
+    deciding = overlay.deciding_line(facts, failure_class, near_miss_m)
     page_lines = (f"policy {pid}, seed {seed}: {n} steps, {'success' if record.success else 'no success'}",
-                  overlay.deciding_line(facts, failure_class, near_miss_m))
+                  deciding)
     written = write_video_and_page(frames, videos_dir / f"{name}.mp4", gallery["fps"],
                                    f"{row}: {failure_class}", tuple(line for line in page_lines if line))
     sheet_name = ""
     if with_sheet:
         sheet_name = f"{selection.slug(failure_class)}.png"
-        _write_sheet(sheets_dir / sheet_name, panels, sheet_steps, views, encoder, row, failure_class, pid, seed,
+        episode = " | ".join(part for part in (failure_class, f"policy {pid}", f"seed {seed}", f"{n} steps", deciding)
+                             if part)
+        _write_sheet(sheets_dir / sheet_name, panels, sheet_steps, views, encoder, row, episode,
                      gallery["resolution"] // 2)
     return {"row": row, "class": failure_class, "policy": pid, "run": pick["run"], "seed": seed, "steps": n,
             "success": record.success, "video": written.name, "sheet": sheet_name,
@@ -133,15 +136,14 @@ def write_video_and_page(frames: list, path: Path, fps: float, title: str, lines
     raise AssertionError("unreachable")
 
 
-def _write_sheet(path: Path, panels: dict, steps: list[int], views: render.Views, encoder, row: str,
-                 failure_class: str, pid: str, seed: int, cell: int) -> None:
+def _write_sheet(path: Path, panels: dict, steps: list[int], views: render.Views, encoder, row: str, episode: str,
+                 cell: int) -> None:
     names = ["viewer (original robot)"] + [f"policy view: {c}" for c in views.camera_names]
     grid = [[panels[k][0] for k in steps]] + [[panels[k][1][i] for k in steps] for i in range(len(views.camera_names))]
     if encoder is not None:
         names.append(f"slot masks: {views.camera_names[MASK_CAMERA]}")
         grid.append([slots.slot_map(encoder, panels[k][1][MASK_CAMERA]) for k in steps])
-    title = [row, f"{failure_class} | policy {pid} | seed {seed} | {steps[-1]} steps"]
-    image = sheet.contact_sheet(title, names, steps, grid, cell)
+    image = sheet.contact_sheet([row, episode], names, steps, grid, cell)
     with atomic_path(path) as tmp:
         image.save(tmp, format="PNG")
 

@@ -77,7 +77,8 @@ def deciding_line(facts: EpisodeFacts, failure_class: str, near_miss_m: float) -
 
 def frame_lines(row: str, failure_class: str, policy: str, seed: int, k: int, facts: EpisodeFacts,
                 near_miss_m: float) -> list[str]:
-    """The caption of frame ``k`` (the env after k actions) of an episode."""
+    """The caption of frame ``k`` (the env after k actions) of an episode: the fact that decided the class comes
+    right after the class, so a caption cut to CAPTION_LINES never loses it."""
     n = facts.steps
     if not 0 <= k <= n:
         raise ValueError(f"frame {k} of an episode of {n} steps")
@@ -86,10 +87,10 @@ def frame_lines(row: str, failure_class: str, policy: str, seed: int, k: int, fa
         grasped = "yes" if facts.grasped[k] else "no"
         where = f"TCP-goal {facts.tcp_goal[k]:.3f} m, object-goal {facts.obj_goal[k]:.3f} m"
     else:  # after the last action: the evaluation observed no more
-        grasped, where = "not observed", "the state after the last action (not observed by the evaluation)"
-    return [row, f"{failure_class} | policy {policy} | seed {seed}",
-            f"step {k}/{n} | gripper commanded {command} | grasped {grasped}", where,
-            deciding_line(facts, failure_class, near_miss_m)]
+        grasped, where = "not observed", "after the last action: not observed by the evaluation"
+    deciding = deciding_line(facts, failure_class, near_miss_m)
+    return [row, f"{failure_class} | policy {policy} | seed {seed}", *([deciding] if deciding else []),
+            f"step {k}/{n} | gripper commanded {command} | grasped {grasped}", where]
 
 
 def _font():

@@ -8,14 +8,17 @@ tables leave out, are not shown."""
 from __future__ import annotations
 
 import zlib
+from pathlib import Path
 
 import numpy as np
 import polars as pl
 
+from .. import paths
 from ..evaluation.taxonomy import CLASSES
 from ..study import registry, targets
 
 SCOPES = ("main", "stackcube")  # the group targets whose tables' rows the gallery shows
+PARTS = ("videos", "sheets", "episodes.csv")  # what one row's gallery job writes under paths.GALLERY
 GALLERY_STREAM = 11  # random stream (root seed, purpose, ...): see evaluation.jobs for the others
 
 
@@ -24,17 +27,37 @@ def table_number(table: str) -> str:
     return table.removeprefix("table").replace("_", ".")
 
 
-def rows(config: dict) -> dict[str, dict[str, str]]:
-    """Experiment -> {table: row label} over the tables of SCOPES, in table order; rows that cannot run with this
-    config (an encoder without its weights) are left out, as the tables leave them."""
+def rows(config: dict, scopes: tuple[str, ...] = SCOPES) -> dict[str, dict[str, str]]:
+    """Experiment -> {table: row label} over the tables of ``scopes`` (of SCOPES), in table order; rows that cannot
+    run with this config (an encoder without its weights) are left out, as the tables leave them."""
+    unknown = set(scopes) - set(SCOPES)
+    if unknown:
+        raise ValueError(f"the gallery covers no scope {sorted(unknown)} (scopes: {', '.join(SCOPES)})")
     out: dict[str, dict[str, str]] = {}
-    for scope in SCOPES:
+    for scope in scopes:
         for table in registry.tables_in(scope):
             skip = targets.unavailable(config, table)
             for label, exp in targets.rows(config, table).items():
                 if label not in skip:
                     out.setdefault(exp, {})[table] = label
     return out
+
+
+def outputs(exps) -> list[str]:
+    """What the gallery jobs of these experiments write (paths relative to the working directory)."""
+    return [f"{paths.GALLERY.format(exp=exp)}/{part}" for exp in exps for part in PARTS]
+
+
+def built(exps, workdir: Path | str = ".") -> list[str]:
+    """``outputs`` of the experiments whose gallery is already there, every part of it. A group target takes these
+    as inputs, so its report shows a gallery once `snakemake gallery` has drawn it and keeps it in step with the
+    tables after that, while a first build of the group never draws one."""
+    drawn = []
+    for exp in exps:
+        parts = outputs([exp])
+        if all((Path(workdir) / f).exists() for f in parts):
+            drawn += parts
+    return drawn
 
 
 def row_title(tables: dict[str, str]) -> str:

@@ -16,12 +16,22 @@ INK = (20, 20, 20)
 PAPER = (255, 255, 255)
 
 
-def sheet_steps(steps: int, count: int) -> list[int]:
+def sheet_steps(steps: int, count: int, deciding: int | None = None) -> list[int]:
     """``count`` frames spread evenly over an episode of ``steps`` actions, from the reset (0) to the end (steps);
-    fewer where the episode is shorter than that."""
+    fewer where the episode is shorter than that. A ``deciding`` step (a Near Miss's closest approach, a Drop's
+    lost grasp) takes the place of the nearest frame between the first and the last, so the sheet shows what
+    decided the class."""
     if count < 2:
         raise ValueError(f"gallery.sheet_frames must be at least 2 (the first and the last), got {count}")
-    return sorted({int(k) for k in np.round(np.linspace(0, steps, count))})
+    chosen = sorted({int(k) for k in np.round(np.linspace(0, steps, count))})
+    if deciding is None or deciding in chosen:
+        return chosen
+    if not 0 <= deciding <= steps:
+        raise ValueError(f"deciding step {deciding} is outside the episode's steps 0..{steps}")
+    inner = chosen[1:-1]
+    if inner:
+        chosen.remove(min(inner, key=lambda k: (abs(k - deciding), k)))
+    return sorted([*chosen, deciding])
 
 
 @dataclass(frozen=True)
