@@ -13,6 +13,7 @@ import numpy as np
 import polars as pl
 import pytest
 
+from ocpipe import paths
 from ocpipe.evaluation import replay
 from ocpipe.sim import envs
 
@@ -115,3 +116,18 @@ def test_a_record_must_be_one_whole_episode():
                                         "PickCube-v1")
     record = replay.EpisodeRecord.from_steps(steps.filter(pl.col("seed") == 1).reverse(), "PickCube-v1")
     assert record.states is None and record.actions.dtype == np.float32 and record.actions.shape == (2, 8)
+
+
+def test_the_first_episode_an_evaluation_job_recorded_replays_in_a_fresh_process(tiny_run, tmp_path):
+    """The closed loop's own record, not this file's copy of it: the first episode of one of the tiny run's stability
+    jobs (the first its env simulated), replayed in a fresh process, reaches its recorded states and success."""
+    episodes_file = sorted((tiny_run / "results" / "runs").glob("goal2d*/stability/run_0.episodes.parquet"))[0]
+    first = pl.read_parquet(episodes_file).row(0, named=True)
+    steps = pl.read_parquet(tiny_run / paths.steps_beside(episodes_file)).filter(pl.col("seed") == first["seed"])
+    steps.write_parquet(tmp_path / "first.steps.parquet")
+    run_worker("replay", "PickCube-v1", tmp_path / "first.steps.parquet", tmp_path / "replayed.npz")
+    result = np.load(tmp_path / "replayed.npz")
+    assert bool(result["success"]) == first["success"] and int(result["steps"]) == first["steps"] == len(steps)
+    # exact: as above; replay() checked every intermediate state the same way
+    np.testing.assert_array_equal(result["final_state"], np.asarray(steps.sort("step")["state"][-1].to_list(),
+                                                                    np.float32))
