@@ -25,6 +25,11 @@ def _arr(steps: pl.DataFrame, col: str) -> np.ndarray:
     return np.asarray(steps[col].to_list(), dtype=np.float64)
 
 
+def tcp_goal_distance(steps: pl.DataFrame) -> np.ndarray:
+    """Per step, how far the TCP is from the goal (m): the closest of these decides a Near Miss."""
+    return np.linalg.norm(_arr(steps, "tcp_pos") - _arr(steps, "goal_pos"), axis=1)
+
+
 def milestones(steps: pl.DataFrame, success: bool, rules: dict) -> dict[str, bool]:
     grasped = np.asarray(steps["is_grasped"].to_list(), dtype=bool)
     obj, goal = _arr(steps, "obj_pos"), _arr(steps, "goal_pos")
@@ -50,7 +55,7 @@ def classify(steps: pl.DataFrame, success: bool, task: str, rules: dict) -> str:
         m = milestones(steps, success, rules)
         if m["lift"] and not m["near target"]:
             return "Grasp No Stack"
-    if np.linalg.norm(_arr(steps, "tcp_pos") - _arr(steps, "goal_pos"), axis=1).min() < rules["near_miss_m"]:
+    if tcp_goal_distance(steps).min() < rules["near_miss_m"]:
         return "Near Miss"
     return "Unknown"
 

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import polars as pl
 
+from ..evaluation import taxonomy
+
 CAPTION_LINES = 5  # every frame of a video has the same size: the caption is this many lines, wrapped to fit
 FONT_SIZE = 11
 LINE_HEIGHT = 14
@@ -42,13 +44,13 @@ def _positions(steps: pl.DataFrame, col: str) -> np.ndarray:
 
 
 def episode_facts(steps: pl.DataFrame, failure_class: str) -> EpisodeFacts:
-    """``steps``: one episode's rows of a steps file. Near Miss: the step of the smallest TCP-goal distance (what
-    the taxonomy compares with near_miss_m); Drop: the first step after the last grasped one, and the object-goal
-    distance there."""
+    """``steps``: one episode's rows of a steps file. Near Miss: the step of the smallest TCP-goal distance (the
+    taxonomy's, which it compares with near_miss_m); Drop: the first step after the last grasped one, and the
+    object-goal distance there."""
     steps = steps.sort("step")
     grasped = np.asarray(steps["is_grasped"].to_list(), dtype=bool)
-    tcp, goal, obj = (_positions(steps, c) for c in ("tcp_pos", "goal_pos", "obj_pos"))
-    tcp_goal, obj_goal = np.linalg.norm(tcp - goal, axis=1), np.linalg.norm(obj - goal, axis=1)
+    tcp_goal = taxonomy.tcp_goal_distance(steps)
+    obj_goal = np.linalg.norm(_positions(steps, "obj_pos") - _positions(steps, "goal_pos"), axis=1)
     gripper = _positions(steps, "action")[:, 7]
     step = None
     if failure_class == "Near Miss":
