@@ -148,13 +148,14 @@ def test_a_frame_puts_the_viewer_left_the_policys_views_right_and_the_caption_be
     viewer = np.random.default_rng(0).integers(0, 255, (64, 64, 3), dtype=np.uint8)
     views = [np.full((16, 16, 3), 200, np.uint8), np.full((16, 16, 3), 50, np.uint8)]
     frame = overlay.compose(viewer, views, ["a caption"])
-    height = 64 + overlay.CAPTION_LINES * overlay.LINE_HEIGHT + 2 * overlay.MARGIN
+    height = 64 + overlay.CAPTION_LINES * overlay.LINE_HEIGHT + 2 * overlay.MARGIN + overlay.CONTROLS_BAND
     assert frame.shape == (height + height % 2, 96, 3) and frame.shape[0] % 2 == 0
     np.testing.assert_array_equal(frame[:64, :64], viewer)  # exact: pasted as it is
     # exact: each view enlarged 16 -> 32 px by nearest neighbour, one above the other
     np.testing.assert_array_equal(frame[:32, 64:96], 200)
     np.testing.assert_array_equal(frame[32:64, 64:96], 50)  # exact: as above
     assert (frame[64:] != overlay.BACKGROUND).any()  # the caption is drawn
+    assert (frame[-overlay.CONTROLS_BAND:] == overlay.BACKGROUND).all()  # and the player's controls cover none of it
     empty = overlay.compose(viewer, [], ["a caption"], no_views="no camera")
     assert empty.shape == frame.shape and (empty[:64, 64:] == overlay.PANEL).all(-1).mean() > 0.8
 

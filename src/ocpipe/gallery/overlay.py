@@ -20,6 +20,9 @@ CAPTION_LINES = 5  # every frame of a video has the same size: the caption is th
 FONT_SIZE = 11
 LINE_HEIGHT = 14
 MARGIN = 4
+# blank rows under the caption: a browser draws a paused video's controls (~60 px tall) over its bottom, which would
+# hide the caption just when a reader stops to read it
+CONTROLS_BAND = 64
 BACKGROUND = (24, 24, 24)
 TEXT = (235, 235, 235)
 PANEL = (60, 60, 60)
@@ -128,13 +131,14 @@ def wrap(lines: list[str], width_px: int, font=None) -> list[str]:
 def compose(viewer: np.ndarray, views: list[np.ndarray], lines: list[str], no_views: str = "") -> np.ndarray:
     """One gallery frame (H, W, 3) uint8: ``viewer`` (S, S, 3) on the left; on the right a column S / 2 wide of the
     policy's ``views``, each scaled (nearest neighbour: its pixels as the policy got them) to fill its share of the
-    height, or a panel saying ``no_views``; below both the caption. Both sides even, as H.264 in yuv420p needs."""
+    height, or a panel saying ``no_views``; below both the caption, then CONTROLS_BAND blank rows. Both sides even,
+    as H.264 in yuv420p needs."""
     from PIL import Image, ImageDraw
 
     size = viewer.shape[0]
     side = size // 2
     caption_h = CAPTION_LINES * LINE_HEIGHT + 2 * MARGIN
-    width, height = size + side, size + caption_h
+    width, height = size + side, size + caption_h + CONTROLS_BAND
     width, height = width + width % 2, height + height % 2
     canvas = Image.new("RGB", (width, height), BACKGROUND)
     canvas.paste(Image.fromarray(np.ascontiguousarray(viewer)), (0, 0))
