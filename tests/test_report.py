@@ -5,7 +5,7 @@ no caption may carry a docutils error, and the page must load nothing from the n
 
 The browser is Debian's `chromium` and `chromium-driver` (bin/setup.sh installs them); without them the tests
 skip, except under CI (CI=true), where they fail. OCPIPE_REPORT_SCREENSHOT=path.png saves the tiny run's gallery page
-for docs/."""
+for docs/; OCPIPE_REPORT=path/report.html checks a report a run built (and screenshots its gallery page instead)."""
 
 import json
 import os
@@ -309,6 +309,30 @@ def test_the_tiny_runs_report_opens_on_the_findings_and_every_item_opens(browser
     screenshot = os.environ.get("OCPIPE_REPORT_SCREENSHOT")
     if screenshot:
         save_screenshot(browser, tiny_report, screenshot)
+
+
+def test_a_built_report_opens_on_the_findings_and_every_item_opens(browser):
+    """A report a run built, named by OCPIPE_REPORT (its run's results/ beside it), checked as the tiny run's is:
+    `snakemake --report report.html spatial_grounding` after `make main` and `snakemake --cores 2 gallery`, then
+    OCPIPE_REPORT=report.html pytest tests/test_report.py -k built_report (docs/development.md)."""
+    given = os.environ.get("OCPIPE_REPORT")
+    if not given:
+        pytest.skip("no built report named: OCPIPE_REPORT=path/to/report.html checks one")
+    report = Path(given).resolve()
+    open_report(browser, report)
+    landing = wait_for(browser, "return document.querySelector('#app .prose') && "
+                       "document.querySelector('#app .prose').innerText", what="the landing page's text")
+    assert "Findings of the study, judged on this build" in landing and "Table 5.1: spatial grounding" in landing
+    seen = walk(browser)
+    assert not seen["failures"], seen["failures"]
+    videos = list((report.parent / "results").glob("gallery/**/*.mp4"))
+    assert seen["videos"] >= len(videos), f"{len(videos)} gallery videos, {seen['videos']} played in the report"
+    assert network_loads(browser) == []
+    print(f"{report}: {len(seen['items'])} items, {seen['images']} images, {seen['videos']} videos "
+          f"({len(videos)} gallery MP4 files)")
+    screenshot = os.environ.get("OCPIPE_REPORT_SCREENSHOT")
+    if screenshot:
+        save_screenshot(browser, report, screenshot)
 
 
 def save_screenshot(driver, report: Path, out) -> None:
