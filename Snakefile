@@ -3,7 +3,7 @@
 import sys
 from pathlib import Path
 
-from ocpipe.bookkeeping import report_page
+from ocpipe.bookkeeping import report_page, run_cpu
 from ocpipe.config.errors import ConfigError
 from ocpipe.config.validate import validate
 from ocpipe.study import registry
@@ -27,6 +27,16 @@ report_page.register(workflow.basedir)
 
 
 report: "workflow/report/workflow.rst"
+
+
+# when a run ends, its jobs' CPU as the kernel counted it, which the benchmark files undercount (ocpipe.bookkeeping.
+# run_cpu): only the process that ran the jobs here can count them
+onsuccess:
+    run_cpu.record(log, workflow.local_exec and not (workflow.remote_exec or workflow.subprocess_exec))
+
+
+onerror:
+    run_cpu.record(log, workflow.local_exec and not (workflow.remote_exec or workflow.subprocess_exec))
 
 
 include: "workflow/rules/common.smk"

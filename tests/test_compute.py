@@ -2,6 +2,8 @@
 
 import os
 import re
+import subprocess
+import sys
 
 import polars as pl
 import pytest
@@ -203,3 +205,46 @@ def test_the_table_says_how_long_two_thread_jobs_waited_with_a_core_idle_or_that
     assert ("utilisation 65 % of 2 cores (core-minutes / (cores x wall time)); jobs of 2+ threads waited with a core "
             "idle: 1.5 core-minutes (1 of 1 such jobs: features store=a: 90 core-s in a 90 s wait; run log "
             "2026-12-06T100000.snakemake.log)") in md.read_text()
+
+
+def test_the_table_gives_the_runs_cpu_by_the_kernels_count_where_the_run_kept_it(default_config, bench, tmp_path):
+    from ocpipe.bookkeeping import run_cpu
+
+    md = tmp_path / "c.md"
+    log = tmp_path / ".snakemake" / "log" / "2026-12-06T100000.snakemake.log"
+    log.parent.mkdir(parents=True)
+    log.write_text(WAITING_LOG)
+    compute.write(default_config, bench, tmp_path / "c.csv", md, cores=2, workdir=tmp_path)
+    assert ("that run's CPU by the kernel's count: none kept yet (a run keeps it when it ends: ocpipe compute then "
+            "gives it)") in md.read_text()
+    # 6 core-minutes over the log's 4 minutes (10:00:00 to 10:04:00) on 2 cores: 75 %
+    run_cpu.path_of(log, tmp_path).parent.mkdir(parents=True)
+    run_cpu.path_of(log, tmp_path).write_text('{"jobs_cpu_seconds": 360.0, "snakemake_cpu_seconds": 5.0}')
+    compute.write(default_config, bench, tmp_path / "c.csv", md, cores=2, workdir=tmp_path)
+    assert ("that run's jobs by the kernel's count: 6.0 core-minutes over its 4.0 min (first job's start to its "
+            "log's last line), 75 % of 2 cores") in md.read_text()
+    run_cpu.path_of(log, tmp_path).write_text('{"jobs_cpu_seconds": 360.0}')
+    with pytest.raises(ValueError, match="2026-12-06T100000.json: no snakemake_cpu_seconds"):
+        compute.write(default_config, bench, tmp_path / "c.csv", md, cores=2, workdir=tmp_path)
+
+
+def test_a_run_keeps_its_jobs_cpu_as_the_kernel_counts_every_process_it_waited_for(tmp_path):
+    from ocpipe.bookkeeping import run_cpu
+
+    log = tmp_path / "2026-12-07T100000.123.snakemake.log"
+    assert run_cpu.record([str(log)], local=False, workdir=tmp_path) is None  # a cluster ran the jobs
+    assert run_cpu.record([], local=True, workdir=tmp_path) is None  # a run without a log
+    assert not (tmp_path / run_cpu.FOLDER).exists()
+    run_cpu.record([str(log)], local=True, workdir=tmp_path)
+    before = run_cpu.read(log, tmp_path)
+    burn = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.3:\n    pass"
+    subprocess.run([sys.executable, "-c", burn], check=True)  # a child of 0.3 CPU-seconds or more, waited for
+    kept = run_cpu.record([str(log)], local=True, workdir=tmp_path)
+    assert kept == tmp_path / run_cpu.FOLDER / "2026-12-07T100000.123.json"
+    after = run_cpu.read(log, tmp_path)
+    assert after["log"] == log.name
+    # derived: the kernel's per-process times, kept to 2 decimals (a clock tick is 0.01 s)
+    assert after["jobs_cpu_seconds"] - before["jobs_cpu_seconds"] >= 0.3 - 0.02
+    with pytest.raises(ValueError, match="not a Snakemake run log"):
+        run_cpu.path_of(tmp_path / "run.txt")
+

@@ -114,6 +114,8 @@ def test_a_log_without_its_cores_is_named(tmp_path):
     log.write_text(LOG)  # a log cut before Snakemake printed its cores
     with pytest.raises(ValueError, match="no 'Provided cores' line"):
         progress.provided_cores(log)
+    log.write_text("Provided cores: 1 (use --cores to define parallelism)\n" + LOG)  # how a 1-core run says it
+    assert progress.provided_cores(log) == 1
     log.write_text("Building DAG of jobs...\nUsing shell: /usr/bin/bash\nProvided cores: 16\n" + LOG)
     assert progress.provided_cores(log) == 16
     assert progress.run_cores(tmp_path) is None  # no .snakemake/log here: not known, not an error

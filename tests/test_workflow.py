@@ -467,6 +467,12 @@ def test_compute_table_charges_every_job_of_the_tiny_run(tiny_run, tmp_path):
     assert "other" not in set(table["kind"])  # no job the table cannot place
     assert "| table5_1 |" in out and "wall time" in out
     assert "% of 2 cores" in out  # the tiny run's --cores, read from its log: the newest run there used 2 as well
+    assert "by the kernel's count" in out
+    # the fixture's run kept its jobs' CPU when it ended (the Snakefile's onsuccess handler)
+    from ocpipe.bookkeeping import run_cpu
+
+    kept = run_cpu.read(sorted((tiny_run / ".snakemake" / "log").glob("*.snakemake.log"))[0], tiny_run)
+    assert kept is not None and kept["jobs_cpu_seconds"] > 0
 
 
 def test_the_run_log_reader_finds_every_job_of_the_tiny_run_and_its_benchmark(tiny_run):

@@ -8,7 +8,8 @@ wall time spans the first job's start (a file's modification time less its secon
 utilisation is core-minutes / (cores x wall time): the share of the cores the run kept busy (a results folder built
 by several runs counts the pauses between them as idle). Beside it stands the rule "no job of two threads may wait
 while a core idles", measured on the newest run log that names its cores (progress.idle_waits): the core-minutes left
-idle while a job of more than one thread was ready and waiting, and the jobs that waited so."""
+idle while a job of more than one thread was ready and waiting, and the jobs that waited so; and that run's jobs'
+CPU as the kernel counted it (run_cpu), which the benchmark files, sampling each job, undercount."""
 
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from ..study.report import markdown
 from ..study.tables import write_csv
 from ..study.targets import experiments_of
 from ..util.atomic import atomic_path
+from . import run_cpu
 
 # benchmark folder -> (what the job builds, stage); the file name, less a shard/epoch/run suffix, names the thing
 EXPERIMENT_STAGES = {"train": "train", "sweep": "sweep", "stability": "stability", "best": "other",
@@ -130,8 +132,10 @@ def by_kind(by_stage: pl.DataFrame, kind: str) -> pl.DataFrame:
     """One row per experiment (store, encoder) of ``kind``: core-minutes per stage, in pipeline order, and total."""
     t = (by_stage.filter(pl.col("kind") == kind)
          .pivot(on="stage", index="what", values="core_min", aggregate_function="sum").fill_null(0.0))
-    t = t.select("what", *[s for s in STAGES if s in t.columns])
-    return t.with_columns(total=pl.sum_horizontal(pl.exclude("what")).round(1))
+    stages = [s for s in STAGES if s in t.columns]
+    if not stages:  # nothing of this kind ran (a folder holding only demos, say)
+        return pl.DataFrame(schema={"what": pl.String, "total": pl.Float64})
+    return t.select("what", *stages).with_columns(total=pl.sum_horizontal(*stages).round(1))
 
 
 def _minutes(table: pl.DataFrame) -> pl.DataFrame:
@@ -149,19 +153,32 @@ def utilisation(jobs: pl.DataFrame, cores: int) -> float:
     return jobs["cpu_seconds"].sum() / 60 / (cores * wall_minutes(jobs))
 
 
-def idle_wait_text(workdir) -> str:
-    """The compute table's words on jobs of 2+ threads that waited while a core idled, from the newest run log
-    in ``workdir`` that names its cores (where the utilisation's cores come from), on that run's own cores."""
+def run_log_text(workdir) -> str:
+    """The compute table's words on the newest run log in ``workdir`` that names its cores (where the
+    utilisation's cores come from), on that run's own cores: how long jobs of 2+ threads waited while a core
+    idled, and the run's jobs' CPU as the kernel counted it (run_cpu), which the benchmark files undercount."""
     from . import progress  # progress imports this module (benchmark_times): imported once both exist
 
     found = progress.cores_log(workdir)
     if found is None:
         return "jobs of 2+ threads waiting with a core idle: not known (no run log names its cores)"
     log, cores = found
-    waits = progress.idle_waits(progress.parse(log), cores)
+    run = progress.parse(log)
+    waits = progress.idle_waits(run, cores)
     who = "; ".join(f"{w.job}: {w.idle_core_seconds:.0f} core-s in a {w.waited_seconds:.0f} s wait" for w in waits.jobs)
-    return (f"jobs of 2+ threads waited with a core idle: {waits.core_seconds / 60:.1f} core-minutes "
+    text = (f"jobs of 2+ threads waited with a core idle: {waits.core_seconds / 60:.1f} core-minutes "
             f"({len(waits.jobs)} of {waits.wide_jobs} such jobs{': ' + who if who else ''}; run log {log.name})")
+    counted = run_cpu.read(log, workdir)
+    if counted is None:
+        return text + ("; that run's CPU by the kernel's count: none kept yet (a run keeps it when it ends: "
+                       "ocpipe compute then gives it)")
+    if run.started is None or run.last_at is None or run.last_at <= run.started:
+        return text + "; that run's CPU by the kernel's count: no job ran"
+    wall = (run.last_at - run.started).total_seconds() / 60
+    jobs_min = counted["jobs_cpu_seconds"] / 60
+    return text + (f"; that run's jobs by the kernel's count: {jobs_min:.1f} core-minutes over its {wall:.1f} min "
+                   f"(first job's start to its log's last line), {100 * jobs_min / (cores * wall):.0f} % of "
+                   f"{cores} cores (benchmark files miss up to 30 s of each job's end: {run_cpu.FOLDER})")
 
 
 def write(config: dict, bench_dir, csv_path, md_path, cores: int | None, workdir=None) -> pl.DataFrame:
@@ -183,7 +200,7 @@ def write(config: dict, bench_dir, csv_path, md_path, cores: int | None, workdir
               f"job's end, from {bench_dir}'s files); "
               + (f"utilisation {100 * utilisation(jobs, cores):.0f} % of {cores} cores (core-minutes / (cores x "
                  "wall time))" if cores else "utilisation not known (the run log names no core count)")
-              + f"; {idle_wait_text(workdir or Path(bench_dir).resolve().parent.parent)}"
+              + f"; {run_log_text(workdir or Path(bench_dir).resolve().parent.parent)}"
               + f". Profile {config.get('profile', '?')}.")
     text = "\n".join(parts) + f"\n{footer}\n"
     with atomic_path(md_path) as tmp:

@@ -98,7 +98,7 @@ def newest_log(workdir) -> Path:
 
 def provided_cores(log: Path) -> int:
     """The cores a run was given (its log's "Provided cores: N")."""
-    found = re.search(r"^Provided cores: (\d+)$", log.read_text(errors="replace"), re.MULTILINE)
+    found = re.search(r"^Provided cores: (\d+)\b", log.read_text(errors="replace"), re.MULTILINE)
     if not found:
         raise ValueError(f"{log}: no 'Provided cores' line (pass --cores)")
     return int(found[1])
