@@ -3,7 +3,7 @@
 import sys
 from pathlib import Path
 
-from ocpipe.bookkeeping import report_page, run_cpu
+from ocpipe.bookkeeping import report_page
 from ocpipe.config.errors import ConfigError
 from ocpipe.config.validate import validate
 from ocpipe.study import registry
@@ -29,16 +29,6 @@ report_page.register(workflow.basedir)
 report: "workflow/report/workflow.rst"
 
 
-# when a run ends, its jobs' CPU as the kernel counted it, which the benchmark files undercount (ocpipe.bookkeeping.
-# run_cpu): only the process that ran the jobs here can count them
-onsuccess:
-    run_cpu.record(log, workflow.local_exec and not (workflow.remote_exec or workflow.subprocess_exec))
-
-
-onerror:
-    run_cpu.record(log, workflow.local_exec and not (workflow.remote_exec or workflow.subprocess_exec))
-
-
 include: "workflow/rules/common.smk"
 include: "workflow/rules/demos.smk"
 include: "workflow/rules/frames.smk"
@@ -48,6 +38,15 @@ include: "workflow/rules/policy.smk"
 include: "workflow/rules/evaluation.smk"
 include: "workflow/rules/gallery.smk"
 include: "workflow/rules/levers.smk"
+
+
+# when a run ends, its jobs' CPU as the kernel counted it (keep_run_cpu, common.smk)
+onsuccess:
+    keep_run_cpu(log)
+
+
+onerror:
+    keep_run_cpu(log)
 
 
 rule spatial_grounding:

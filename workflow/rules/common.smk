@@ -1,6 +1,7 @@
 # What the stage files share: wildcard constraints, config slices passed as params (ocpipe.config.job_params: a
 # change to a setting reruns exactly the jobs that read it), target lists and every input function.
 from ocpipe import paths
+from ocpipe.bookkeeping import run_cpu
 from ocpipe.config import experiments as _exp
 from ocpipe.config import job_params, scheduling
 from ocpipe.encoders.registry import ENCODERS, SLOT_ENCODERS
@@ -259,3 +260,9 @@ def gallery_targets(scope):
 def built_gallery(scope):
     """The part of gallery_targets(scope) already drawn: its group target lists it, so its report shows it."""
     return gallery_selection.built(gallery_selection.rows(config, (scope,)))
+
+
+def keep_run_cpu(log):
+    """The onsuccess/onerror handlers' one step: the run's jobs' CPU as the kernel counted it, which the benchmark
+    files undercount (ocpipe.bookkeeping.run_cpu); only the process that ran the jobs here can count them."""
+    run_cpu.record(log, workflow.local_exec and not (workflow.remote_exec or workflow.subprocess_exec))
