@@ -30,11 +30,16 @@ def tcp_goal_distance(steps: pl.DataFrame) -> np.ndarray:
     return np.linalg.norm(_arr(steps, "tcp_pos") - _arr(steps, "goal_pos"), axis=1)
 
 
+def obj_goal_distance(steps: pl.DataFrame) -> np.ndarray:
+    """Per step, how far the object is from the goal (m): under stack_near_m it is near its target."""
+    return np.linalg.norm(_arr(steps, "obj_pos") - _arr(steps, "goal_pos"), axis=1)
+
+
 def milestones(steps: pl.DataFrame, success: bool, rules: dict) -> dict[str, bool]:
     grasped = np.asarray(steps["is_grasped"].to_list(), dtype=bool)
-    obj, goal = _arr(steps, "obj_pos"), _arr(steps, "goal_pos")
+    obj = _arr(steps, "obj_pos")
     lifted = grasped & (obj[:, 2] > obj[0, 2] + rules["lift_m"])
-    near = np.linalg.norm(obj - goal, axis=1) < rules["stack_near_m"]
+    near = obj_goal_distance(steps) < rules["stack_near_m"]
     return {"grasp": bool(grasped.any()), "lift": bool(lifted.any()), "near target": bool(near.any()),
             "success": success}
 

@@ -53,7 +53,7 @@ def episode_facts(steps: pl.DataFrame, failure_class: str) -> EpisodeFacts:
     steps = steps.sort("step")
     grasped = np.asarray(steps["is_grasped"].to_list(), dtype=bool)
     tcp_goal = taxonomy.tcp_goal_distance(steps)
-    obj_goal = np.linalg.norm(_positions(steps, "obj_pos") - _positions(steps, "goal_pos"), axis=1)
+    obj_goal = taxonomy.obj_goal_distance(steps)
     gripper = _positions(steps, "action")[:, 7]
     step = None
     if failure_class == "Near Miss":
