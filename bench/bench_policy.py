@@ -7,6 +7,8 @@ seconds per training epoch at the thesis' model width vs the default profile's.
     .venv/bin/python bench/bench_policy.py --per-policy goal2d "goal2d:epochs=10,save_every=5,lr_schedule=cosine"
         # CPU-seconds to train one policy end to end, per recipe, against the first, and against the floor: the same
         # model's forward, backward and step on random tensors already in memory, for the recipe's steps
+    .venv/bin/python bench/bench_policy.py --step-kernels --threads 1
+        # that step in eager mode (as training runs), under torch.compile and under bfloat16 autocast
 
 Each loader runs in its own process so its peak RSS is its own."""
 
@@ -158,9 +160,17 @@ def _train_worker(policy, stores, threads, camera_approx, queue):
         queue.put({"cpu": time.process_time() - t0, "epochs": len(log)})
 
 
-def _floor_worker(policy, steps, threads, K, D, queue):
+# how the floor's step runs: the training loop's eager kernels, or a candidate that changes only the arithmetic
+KERNELS = {
+    "eager": "eager (as training runs)",
+    "compile": "torch.compile (inductor)",
+    "bf16": "bfloat16 autocast",
+}
+
+
+def _floor_worker(policy, steps, threads, K, D, kernel, queue):
     """The model's forward, backward, clipping and AdamW step on random batches already in memory, timed over a
-    sample of steps and scaled to ``steps``."""
+    sample of steps (after 3 untimed ones, which hold torch.compile's compilation) and scaled to ``steps``."""
     from ocpipe.policy.model import PROPRIO_DIMS, SequencePolicy, goal_dims
     from ocpipe.policy.settings import PolicySettings
 
@@ -175,14 +185,22 @@ def _floor_worker(policy, steps, threads, K, D, queue):
     model = SequencePolicy(policy, K, D)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=policy["lr"])
-    timed = min(steps, 200)
-    t0 = time.process_time()
-    for _ in range(timed):
-        loss = model(*batch).actions.square().mean()
+    forward = torch.compile(model) if kernel == "compile" else model
+
+    def step():
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=kernel == "bf16"):
+            loss = forward(*batch).actions.float().square().mean()
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(params, 1.0)
         opt.step()
+
+    for _ in range(3):
+        step()
+    timed = min(steps, 200)
+    t0 = time.process_time()
+    for _ in range(timed):
+        step()
     queue.put((time.process_time() - t0) / timed * steps)
 
 
@@ -218,10 +236,22 @@ def per_policy(config, specs: list[str], threads: int) -> None:
         d = data.load(p, stores["features"], stores["frames"], config["camera_approx"])
         batches = len(d.windows(PolicySettings.of(p), d.train_frames, p["batch_size"], 0))
         got = _in_child(_train_worker, p, stores, threads, config["camera_approx"])
-        floor = _in_child(_floor_worker, p, got["epochs"] * batches, threads, d.meta["K"], d.meta["D"])
+        floor = _in_child(_floor_worker, p, got["epochs"] * batches, threads, d.meta["K"], d.meta["D"], "eager")
         first = first or got["cpu"]
         print(f"{spec:<58}{got['epochs']:>7}{got['epochs'] * batches:>8}{got['cpu']:>9.0f}"
               f"{got['cpu'] / first:>9.2f}{floor:>9.0f}{got['cpu'] / floor:>9.2f}")
+    print()
+
+
+def step_kernels(policy, threads: int, steps: int, K: int = 7, D: int = 64) -> None:
+    """The floor's training step under each of KERNELS, each in a fresh process, against the eager step."""
+    print(f"training step on random tensors, batch {policy['batch_size']}, width {policy['width']}, "
+          f"{policy['layers']} layers, {threads} thread{'s' * (threads > 1)}, {steps} steps timed:")
+    eager = None
+    for kernel, label in KERNELS.items():
+        ms = _in_child(_floor_worker, policy, steps, threads, K, D, kernel) / steps * 1000
+        eager = eager or ms
+        print(f"  {label:<28}{ms:>8.1f} ms CPU per step{ms / eager:>8.2f}x eager")
     print()
 
 
@@ -276,8 +306,13 @@ def main():
     ap.add_argument("--per-policy", nargs="+", metavar="RECIPE", help="only train one policy end to end per recipe "
                     "(an experiment, with overrides as in --experiments; the first is the reference) and print CPU "
                     "seconds, the ratio to the first and to the floor (the train rule's threads: --threads 1)")
+    ap.add_argument("--step-kernels", action="store_true", help="only time goal2d's training step on random "
+                    "tensors in eager mode, under torch.compile and under bfloat16 autocast (no store needed)")
     args = ap.parse_args()
     config = cfgmod.load(args.config)
+    if args.step_kernels:
+        step_kernels(experiments.resolve(config, "goal2d"), args.threads, 200)
+        return
     if args.per_policy:
         per_policy(config, args.per_policy, args.threads)
         return
