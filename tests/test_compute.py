@@ -122,6 +122,19 @@ def test_record_copies_a_whole_runs_tables_and_refuses_part_of_one(default_confi
     assert (out / "rule_times.csv").read_text() == ("rule,kind,jobs,median_cpu_seconds,cpu_seconds\n"
                                                     "train,train,1,290.0,290.0\n")  # a job without wildcards
     assert "rule_times.csv" in (out / "README.md").read_text()
+    # the compute table is the whole run's, written at record time, not the copy its compute job left
+    assert "1 jobs, 4.8 core-minutes" in (out / "compute.md").read_text()
+    assert (tables / "compute.md").read_text() == "**compute**\n"  # exact: the run's own files are left as they were
+    # a run that named its cores and kept its CPU as the kernel counted it: the record's table gives that count
+    from ocpipe.bookkeeping import run_cpu
+
+    log.write_text("Provided cores: 2\n[Thu Dec  3 00:00:00 2026]\nlocalrule train:\n    jobid: 1\n"
+                   "    benchmark: results/benchmarks/train/goal2d.tsv\n[Thu Dec  3 00:05:00 2026]\nFinished job 1.\n")
+    run_cpu.path_of(log, tmp_path).parent.mkdir(parents=True)
+    run_cpu.path_of(log, tmp_path).write_text('{"jobs_cpu_seconds": 300.0, "snakemake_cpu_seconds": 5.0}')
+    record.write(default_config, tmp_path / "results", out, "time snakemake --cores 2 all", "abc123")
+    assert ("that run's jobs by the kernel's count: 5.0 core-minutes over its 5.0 min (first job's start to its "
+            "log's last line), 50 % of 2 cores") in (out / "compute.md").read_text()
     (tables / "table5_7.md").unlink()
     with pytest.raises(FileNotFoundError, match="table5_7.md"):
         record.write(default_config, tmp_path / "results", out, "cmd", "abc123")

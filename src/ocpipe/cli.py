@@ -40,7 +40,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--replay", action="store_true", help="check the pricing on the newest run log, a finished run: "
                    "at 25, 50 and 75 %% of its jobs, the estimate from the jobs finished by then against the real "
                    "time left")
-    p = sub.add_parser("record", help="copy a whole run's tables, findings and compute table into docs/results/")
+    p = sub.add_parser("record", help="copy a whole run's tables and findings into docs/results/ and write its "
+                       "compute table there from the whole run")
     p.add_argument("results", nargs="?", default="results")
     p.add_argument("--out", default="docs/results")
     p.add_argument("--command", default="time snakemake --cores 2 all", help="the command that made the run")

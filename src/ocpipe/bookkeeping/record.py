@@ -1,7 +1,7 @@
-"""The record of a full run: its tables, findings and compute table copied as the pipeline wrote them into a folder
-under version control (docs/results/), with the commit and command that made them, and the CPU time of each rule
-and kind of job (rule_times.csv), by which `ocpipe progress` prices a later run's jobs before any of their kind
-has finished."""
+"""The record of a full run: its tables and findings copied as the pipeline wrote them into a folder under version
+control (docs/results/), its compute table written again from the whole run, with the commit and command that made
+them, and the CPU time of each rule and kind of job (rule_times.csv), by which `ocpipe progress` prices a later
+run's jobs before any of their kind has finished."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from ..util.atomic import atomic_path
-from . import progress
+from . import compute, progress
 
 
 def recorded_files(config: dict, tables_dir) -> list[Path]:
@@ -68,6 +68,10 @@ def write(config: dict, results, out_dir, command: str, commit: str | None = Non
     for f in files:
         with atomic_path(out / f.name) as tmp:
             shutil.copyfile(f, tmp)
+    bench_dir = Path(results, "benchmarks")
+    if bench_dir.is_dir():  # the run's own compute job ran before its last jobs and before the run kept its CPU
+        compute.write(config, bench_dir, out / "compute.csv", out / "compute.md", progress.run_cores(workdir),
+                      workdir)
     try:
         progress.write_rule_times(workdir, out / progress.RULE_TIMES.name)
         rule_times = True
@@ -76,9 +80,11 @@ def write(config: dict, results, out_dir, command: str, commit: str | None = Non
     when = datetime.now(timezone.utc).strftime("%Y-%m-%d")
     note = (f"# The last full run\n\nCommit `{commit}`, profile {config.get('profile', '?')}, recorded {when}.\n"
             f"Command, from a fresh clone:\n\n```bash\n{command}\n```\n\n"
-            "Every file here is the pipeline's own output, copied by `ocpipe record` (never edited): the study's "
-            "tables (`table5_*`), the findings this run reproduces (`findings`) and where its time went "
-            "(`compute`).\n"
+            "Every file here is the pipeline's own output, never edited: the study's tables (`table5_*`) and the "
+            "findings this run reproduces (`findings`), copied by `ocpipe record`, and where its time went "
+            "(`compute`), which `ocpipe record` writes again from the whole run's benchmark files and logs (the "
+            "run's own compute job ran before its last jobs ended, and before the run kept its CPU as the kernel "
+            "counted it).\n"
             + ("`rule_times.csv` is the jobs and CPU seconds of each rule and kind of job (the rule's wildcards less "
                "replicate, shard, run and checkpoint) in that run, from its benchmark files; `ocpipe progress` "
                "prices a later run's jobs by it until their own kind has a finished job.\n"
