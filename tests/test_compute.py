@@ -112,6 +112,7 @@ def test_record_copies_a_whole_runs_tables_and_refuses_part_of_one(default_confi
     assert not (out / "table5_99.csv").exists()  # a table of an older run does not survive into this record
     assert "Commit `abc123`" in (out / "README.md").read_text()
     assert not (out / "rule_times.csv").exists()  # no run log beside the results: no rule times
+    assert "as the run's compute job wrote it" in (out / "README.md").read_text()  # no benchmark files: a copy
     log = tmp_path / ".snakemake" / "log" / "2026-12-03T000000.snakemake.log"
     log.parent.mkdir(parents=True)
     log.write_text("[Thu Dec  3 00:00:00 2026]\nlocalrule train:\n    jobid: 1\n"
@@ -124,6 +125,7 @@ def test_record_copies_a_whole_runs_tables_and_refuses_part_of_one(default_confi
     assert "rule_times.csv" in (out / "README.md").read_text()
     # the compute table is the whole run's, written at record time, not the copy its compute job left
     assert "1 jobs, 4.8 core-minutes" in (out / "compute.md").read_text()
+    assert "writes again from the whole run's benchmark files" in (out / "README.md").read_text()
     assert (tables / "compute.md").read_text() == "**compute**\n"  # exact: the run's own files are left as they were
     # a run that named its cores and kept its CPU as the kernel counted it: the record's table gives that count
     from ocpipe.bookkeeping import run_cpu

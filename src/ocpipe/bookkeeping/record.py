@@ -69,7 +69,8 @@ def write(config: dict, results, out_dir, command: str, commit: str | None = Non
         with atomic_path(out / f.name) as tmp:
             shutil.copyfile(f, tmp)
     bench_dir = Path(results, "benchmarks")
-    if bench_dir.is_dir():  # the run's own compute job ran before its last jobs and before the run kept its CPU
+    recomputed = bench_dir.is_dir()
+    if recomputed:  # the run's own compute job ran before its last jobs and before the run kept its CPU
         compute.write(config, bench_dir, out / "compute.csv", out / "compute.md", progress.run_cores(workdir),
                       workdir)
     try:
@@ -82,9 +83,9 @@ def write(config: dict, results, out_dir, command: str, commit: str | None = Non
             f"Command, from a fresh clone:\n\n```bash\n{command}\n```\n\n"
             "Every file here is the pipeline's own output, never edited: the study's tables (`table5_*`) and the "
             "findings this run reproduces (`findings`), copied by `ocpipe record`, and where its time went "
-            "(`compute`), which `ocpipe record` writes again from the whole run's benchmark files and logs (the "
-            "run's own compute job ran before its last jobs ended, and before the run kept its CPU as the kernel "
-            "counted it).\n"
+            + ("(`compute`), which `ocpipe record` writes again from the whole run's benchmark files and logs (the "
+               "run's own compute job ran before its last jobs ended, and before the run kept its CPU as the kernel "
+               "counted it).\n" if recomputed else "(`compute`), as the run's compute job wrote it.\n")
             + ("`rule_times.csv` is the jobs and CPU seconds of each rule and kind of job (the rule's wildcards less "
                "replicate, shard, run and checkpoint) in that run, from its benchmark files; `ocpipe progress` "
                "prices a later run's jobs by it until their own kind has a finished job.\n"
