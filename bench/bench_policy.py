@@ -8,7 +8,8 @@ seconds per training epoch at the thesis' model width vs the default profile's.
         # CPU-seconds to train one policy end to end, per recipe, against the first, and against the floor: the same
         # model's forward, backward and step on random tensors already in memory, for the recipe's steps
     .venv/bin/python bench/bench_policy.py --step-kernels --threads 1
-        # that step in eager mode (as training runs), under torch.compile and under bfloat16 autocast
+        # that step in eager mode (as training runs), under torch.compile, under bfloat16 autocast, and one policy's
+        # share of a step that trains five policies together (torch.func.vmap)
 
 Each loader runs in its own process so its peak RSS is its own."""
 
@@ -160,27 +161,44 @@ def _train_worker(policy, stores, threads, camera_approx, queue):
         queue.put({"cpu": time.process_time() - t0, "epochs": len(log)})
 
 
+STACKED = 5  # policies trained together in the 'stacked' variant: a row's replicates
 # how the floor's step runs: the training loop's eager kernels, or a candidate that changes only the arithmetic
 KERNELS = {
     "eager": "eager (as training runs)",
     "compile": "torch.compile (inductor)",
     "bf16": "bfloat16 autocast",
+    "stacked": f"{STACKED} policies in one step (vmap)",
 }
 
 
 def _floor_worker(policy, steps, threads, K, D, kernel, queue):
     """The model's forward, backward, clipping and AdamW step on random batches already in memory, timed over a
-    sample of steps (after 3 untimed ones, which hold torch.compile's compilation) and scaled to ``steps``."""
-    from ocpipe.policy.model import PROPRIO_DIMS, SequencePolicy, goal_dims
+    sample of steps (after 3 untimed ones, which hold torch.compile's compilation) and scaled to ``steps``; for
+    'stacked', the CPU of one policy's share of a step that trains STACKED policies together."""
+    from ocpipe.policy.model import PROPRIO_DIMS, goal_dims
     from ocpipe.policy.settings import PolicySettings
 
     torch.set_num_threads(threads)
     settings = PolicySettings.of(policy)
     B, T, C = policy["batch_size"], policy["window"], len(policy["cameras"])
+    lead = (STACKED,) if kernel == "stacked" else ()  # each stacked policy its own batch
     g = torch.Generator().manual_seed(0)
-    batch = (torch.randn(B, T, C, K, D, generator=g),
-             torch.randn(B, T, PROPRIO_DIMS[settings.network.proprio], generator=g),
-             torch.randn(B, T, goal_dims(settings), generator=g))
+    batch = (torch.randn(*lead, B, T, C, K, D, generator=g),
+             torch.randn(*lead, B, T, PROPRIO_DIMS[settings.network.proprio], generator=g),
+             torch.randn(*lead, B, T, goal_dims(settings), generator=g))
+    step = (_stacked_step if kernel == "stacked" else _single_step)(policy, K, D, kernel, batch)
+    for _ in range(3):
+        step()
+    timed = min(steps, 200)
+    t0 = time.process_time()
+    for _ in range(timed):
+        step()
+    queue.put((time.process_time() - t0) / timed * steps / (STACKED if kernel == "stacked" else 1))
+
+
+def _single_step(policy, K, D, kernel, batch):
+    from ocpipe.policy.model import SequencePolicy
+
     torch.manual_seed(0)
     model = SequencePolicy(policy, K, D)
     params = [p for p in model.parameters() if p.requires_grad]
@@ -195,13 +213,45 @@ def _floor_worker(policy, steps, threads, K, D, kernel, queue):
         torch.nn.utils.clip_grad_norm_(params, 1.0)
         opt.step()
 
-    for _ in range(3):
-        step()
-    timed = min(steps, 200)
-    t0 = time.process_time()
-    for _ in range(timed):
-        step()
-    queue.put((time.process_time() - t0) / timed * steps)
+    return step
+
+
+def _stacked_step(policy, K, D, kernel, batch):
+    """STACKED policies' parameters stacked along a new first dimension, their forward passes as one under
+    torch.func.vmap (each its own dropout draws), one AdamW over the stacks (element-wise, so the same as one per
+    policy) and each policy's gradient clipped by its own norm."""
+    import copy
+
+    from torch.func import functional_call, stack_module_state, vmap
+
+    from ocpipe.policy.model import SequencePolicy
+
+    models = []
+    for seed in range(STACKED):
+        torch.manual_seed(seed)
+        models.append(SequencePolicy(policy, K, D))
+    params, buffers = stack_module_state(models)
+    params = {k: v for k, v in params.items() if v.requires_grad}
+    skeleton = copy.deepcopy(models[0]).to("meta")
+    opt = torch.optim.AdamW(list(params.values()), lr=policy["lr"])
+
+    def loss_of(p, b, *x):
+        return functional_call(skeleton, (p, b), x, strict=False).actions.square().mean()
+
+    losses = vmap(loss_of, randomness="different")
+
+    def step():
+        loss = losses(params, buffers, *batch).sum()  # each policy's gradient is its own loss's
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        grads = [p.grad for p in params.values() if p.grad is not None]
+        norms = torch.stack([gr.flatten(1).square().sum(1) for gr in grads]).sum(0).sqrt()
+        scale = (1.0 / (norms + 1e-6)).clamp(max=1.0)
+        for gr in grads:
+            gr.mul_(scale.view(-1, *[1] * (gr.dim() - 1)))
+        opt.step()
+
+    return step
 
 
 def _in_child(target, *args):
@@ -251,7 +301,7 @@ def step_kernels(policy, threads: int, steps: int, K: int = 7, D: int = 64) -> N
     for kernel, label in KERNELS.items():
         ms = _in_child(_floor_worker, policy, steps, threads, K, D, kernel) / steps * 1000
         eager = eager or ms
-        print(f"  {label:<28}{ms:>8.1f} ms CPU per step{ms / eager:>8.2f}x eager")
+        print(f"  {label:<28}{ms:>8.1f} ms CPU per policy step{ms / eager:>8.2f}x eager")
     print()
 
 
@@ -307,7 +357,8 @@ def main():
                     "(an experiment, with overrides as in --experiments; the first is the reference) and print CPU "
                     "seconds, the ratio to the first and to the floor (the train rule's threads: --threads 1)")
     ap.add_argument("--step-kernels", action="store_true", help="only time goal2d's training step on random "
-                    "tensors in eager mode, under torch.compile and under bfloat16 autocast (no store needed)")
+                    "tensors in eager mode, under torch.compile, under bfloat16 autocast and stacked with four more "
+                    "policies under torch.func.vmap (per policy; no store needed)")
     args = ap.parse_args()
     config = cfgmod.load(args.config)
     if args.step_kernels:
