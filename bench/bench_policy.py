@@ -167,7 +167,7 @@ KERNELS = {
     "eager": "eager (as training runs)",
     "compile": "torch.compile (inductor)",
     "bf16": "bfloat16 autocast",
-    "stacked": f"{STACKED} policies in one step (vmap)",
+    "stacked": f"{STACKED} policies stacked (vmap)",
 }
 
 

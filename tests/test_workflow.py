@@ -16,6 +16,8 @@ from conftest import REPO, TABLES, snakemake
 from tolerances import EPS16, EPS32, reduction_atol
 
 from ocpipe import paths
+from ocpipe.config import experiments
+from ocpipe.config import validate as cfgmod
 from ocpipe.frames import render
 from ocpipe.frames import store as frames_store
 from ocpipe.paths import split_policy
@@ -369,7 +371,8 @@ def test_dry_run_of_all_audits_the_whole_study_on_both_configs(tmp_path):
             priority[job.groups()] = int(found.group(1)) if found else 0
     assert priority[("features", "task=StackCube-v1, cams=native, res=128, encoder=slots_ssl")] == 2
     assert priority[("features", "task=PickCube-v1, cams=dual, res=128, encoder=slots_ssl")] == 0
-    assert priority[("train", "exp=stack_native")] == priority[("sweep", "exp=stack_native, epoch=0032")] == 2
+    last = experiments.resolve(cfgmod.load(REPO / "config" / "config.yaml"), "stack_native")["epochs"]
+    assert priority[("train", "exp=stack_native")] == priority[("sweep", f"exp=stack_native, epoch={last:04d}")] == 2
     assert priority[("train", "exp=window40")] == priority[("stability", "exp=window40, run=0")] == 1
     assert priority[("train", "exp=goal2d")] == priority[("train", "exp=state_control")] == 0
 
