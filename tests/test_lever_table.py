@@ -48,7 +48,7 @@ def test_each_lever_is_tested_against_its_experiments_baseline(tmp_path):
 def test_a_lever_resolves_over_its_experiment_and_bad_levers_are_named(default_config):
     lever = resolve_lever(default_config, "goal2d_dropout")
     assert lever == {**resolve(default_config, "goal2d"), "dropout": 0.1, "epochs": 16, "save_every": 8,
-                     "name": "goal2d_dropout"}
+                     "lr_schedule": "constant", "name": "goal2d_dropout"}
     # a lever's epochs is the base budget its experiment takes its share of, and its own share replaces the
     # experiment's: never both (window20 trains 0.44 of the budget)
     sets = default_config["levers"]["sets"]
