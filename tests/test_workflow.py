@@ -293,7 +293,6 @@ def test_fusion_table_end_to_end_with_training_seed_runs(tiny_run):
 def test_table_jobs_draw_pairwise_disjoint_test_seeds_and_record_their_settings(tiny_run):
     import polars as pl
 
-    from ocpipe.config import validate as cfgmod
     from ocpipe.config.seed_pools import pools
 
     config = cfgmod.load(REPO / "config" / "config.yaml", tiny_run / "tiny.yaml")
@@ -510,7 +509,6 @@ def test_an_episode_is_the_same_in_a_fresh_env_and_after_other_episodes(tiny_run
     """Evaluation jobs may split a run's seeds any way: an episode must not depend on what the env ran before."""
     import polars as pl
 
-    from ocpipe.config import validate as cfgmod
     from ocpipe.evaluation import closed_loop
 
     res = tiny_run / "results"
@@ -536,7 +534,6 @@ def test_an_encoder_built_for_one_camera_gives_that_cameras_tokens(tiny_run):
     encoder of the whole set gives that camera."""
     import torch
 
-    from ocpipe.config import validate as cfgmod
     from ocpipe.encoders import registry
 
     res = tiny_run / "results"
@@ -560,8 +557,6 @@ def test_training_and_the_closed_loop_build_the_same_inputs_from_one_replayed_ep
     exactly on a replayed demo: proprioception, the goal in every form and calibration, the object's pose."""
     import h5py
 
-    from ocpipe.config import experiments
-    from ocpipe.config import validate as cfgmod
     from ocpipe.frames import replay
     from ocpipe.policy import observation
     from ocpipe.policy.settings import PolicySettings
@@ -614,7 +609,6 @@ def test_no_first_frame_reads_a_grasp_left_over_from_the_previous_episode(tiny_r
     import polars as pl
     import torch
 
-    from ocpipe.config import validate as cfgmod
     from ocpipe.evaluation import closed_loop
     from ocpipe.frames import replay
     from ocpipe.sim import envs
@@ -643,7 +637,6 @@ def test_no_first_frame_reads_a_grasp_left_over_from_the_previous_episode(tiny_r
 
 
 def test_the_policy_sees_the_true_object_pose_under_the_diagnostic_filter(tiny_run):
-    from ocpipe.config import validate as cfgmod
     from ocpipe.evaluation import closed_loop
 
     res = tiny_run / "results"
