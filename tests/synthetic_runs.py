@@ -45,9 +45,8 @@ def _write_policy(config, runs: Path, pid: str, per_run: list[int], steps: int, 
     training_time = inputs.TRAINING_TIME.files(config, pid, str(runs))[0]
     _episodes(round(per_run[0] * 30 / 40), 30, steps, 0).write_parquet(training_time)
     epochs = saved_epochs(resolve(config, split_policy(pid)[0]))
-    for epoch, f in zip(epochs, inputs.SWEEP.files(config, pid, str(runs)), strict=True):
-        Path(f).parent.mkdir(parents=True, exist_ok=True)
-        _episodes(per_run[0], 6, steps, 0).with_columns(checkpoint=pl.lit(epoch)).write_parquet(f)
+    sweep = pl.concat([_episodes(per_run[0], 6, steps, 0).with_columns(checkpoint=pl.lit(e)) for e in epochs])
+    sweep.write_parquet(inputs.SWEEP.files(config, pid, str(runs))[0])
     Path(inputs.BEST.files(config, pid, str(runs))[0]).write_text(json.dumps({"epoch": epochs[-1]}))
 
 

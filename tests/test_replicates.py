@@ -181,10 +181,12 @@ def test_each_policy_keeps_its_own_best_epoch_and_peak_reward(default_config, tm
                                       for e in ("pure_visual", "window20", "window40")})
     # policy 3 of T=5 picks its first checkpoint, whose sweep returned 2.0 per episode; the others their last (1.0)
     pid = targets.policies(default_config, "pure_visual")[3]
-    first = inputs.SWEEP.files(default_config, pid, str(runs))[0]
-    epoch = int(Path(first).name.split("_")[1].split(".")[0])
+    sweep = inputs.SWEEP.files(default_config, pid, str(runs))[0]
     import polars as pl
-    pl.read_parquet(first).with_columns(**{"return": pl.lit(2.0)}).write_parquet(first)
+    episodes = pl.read_parquet(sweep)
+    epoch = episodes["checkpoint"].min()
+    first = pl.col("checkpoint") == epoch
+    episodes.with_columns(**{"return": pl.when(first).then(2.0).otherwise(pl.col("return"))}).write_parquet(sweep)
     best = inputs.BEST.files(default_config, pid, str(runs))[0]
     Path(best).write_text(json.dumps({"epoch": epoch, "sweep": [{"checkpoint": epoch, "mean_return": 2.0}]}))
     from ocpipe.study import findings

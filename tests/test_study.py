@@ -154,8 +154,7 @@ def test_run_files_come_from_the_path_patterns_under_any_runs_folder(default_con
     assert inputs.BEST.files(default_config, "goal2d") == ["results/runs/goal2d/best.json"]
     assert inputs.STABILITY.files(default_config, "goal2d", runs_dir="/x/runs")[0] == (
         "/x/runs/goal2d/stability/run_0.episodes.parquet")
-    assert inputs.SWEEP.files(default_config, "goal2d")[-1] == (
-        paths.SWEEP.format(exp="goal2d", epoch=f"{default_config['policy']['epochs']:04d}") + ".episodes.parquet")
+    assert inputs.SWEEP.files(default_config, "goal2d") == ["results/runs/goal2d/sweep.episodes.parquet"]
     # each episodes file has its steps beside it; anything else is named, not guessed at
     assert paths.steps_beside("/x/runs/goal2d/stability/run_0.episodes.parquet") == (
         "/x/runs/goal2d/stability/run_0.steps.parquet")

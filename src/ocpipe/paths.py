@@ -2,8 +2,8 @@
 by the code that finds a run's files (filled in with ``str.format``).
 
 Fields: ``task`` (PickCube-v1, ...), ``cams`` (dual | native), ``res`` (pixels), ``encoder``, ``shard``,
-``exp`` (one trained policy of an experiment of config ``experiments``: ``policy_id``), ``epoch`` (4 digits),
-``run`` (a stability run), ``table``, ``figure``. A frames store's name ``{task}_{cams}_{res}`` is what config
+``exp`` (one trained policy of an experiment of config ``experiments``: ``policy_id``), ``run`` (a stability run),
+``table``, ``figure``. A frames store's name ``{task}_{cams}_{res}`` is what config
 `encoders.slots_ssl.train_stores` lists."""
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ RUNS = RESULTS + "/runs"
 RUN = RUNS + "/{exp}"
 CHECKPOINTS = RUN + "/checkpoints"
 TRAIN_LOG = RUN + "/train_log.parquet"
-SWEEP = RUN + "/sweep/epoch_{epoch}"  # .episodes.parquet and .steps.parquet
+SWEEP = RUN + "/sweep"  # .episodes.parquet and .steps.parquet: every saved checkpoint, on the same seeds
 BEST = RUN + "/best.json"
 STABILITY = RUN + "/stability/run_{run}"  # .episodes.parquet and .steps.parquet
 # an evaluation run's two files: one row per episode, one per step

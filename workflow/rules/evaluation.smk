@@ -1,7 +1,7 @@
-# Closed-loop evaluation (docs/study.md, Evaluation protocol): a sweep job per (experiment, checkpoint), the best
-# checkpoint, stability runs (one job each), Table 5.5's training-time runs, training-seed runs, failure
-# classification (docs/study.md, Failure taxonomy), and the study's tables and figures (docs/study.md, Tables and
-# figures).
+# Closed-loop evaluation (docs/study.md, Evaluation protocol): a sweep job per policy (all its checkpoints in one
+# simulator, so the job's start-up of imports, simulator and encoder is paid once), the best checkpoint, stability
+# runs (one job each), Table 5.5's training-time runs, training-seed runs, failure classification (docs/study.md,
+# Failure taxonomy), and the study's tables and figures (docs/study.md, Tables and figures).
 from ocpipe.bookkeeping import report_page
 from ocpipe.study import builds, conditions, findings, registry, targets
 
@@ -47,11 +47,9 @@ rule sweep:
         episodes=f"{paths.SWEEP}.episodes.parquet",
         steps=f"{paths.SWEEP}.steps.parquet",
     log:
-        "results/logs/sweep/{exp}_epoch_{epoch}.log",
+        "results/logs/sweep/{exp}.log",
     benchmark:
-        "results/benchmarks/sweep/{exp}_epoch_{epoch}.tsv"
-    wildcard_constraints:
-        epoch=r"\d{4}",
+        "results/benchmarks/sweep/{exp}.tsv"
     priority: policy_priority
     conda:
         "../envs/ocpipe.yaml"
@@ -61,6 +59,7 @@ rule sweep:
     params:
         **EVAL_PARAMS,
         kind="sweep",
+        epochs=lambda w: _exp.saved_epochs(policy_of(w)),
     script:
         "../scripts/sweep.py"
 

@@ -7,5 +7,5 @@ config = {**p.cfg, "evaluation": p.evaluation}
 with runlog.to_file(snakemake.log[0]):
     print(jobs.run_job("validation", w.lever, config, snakemake.input.checkpoints, snakemake.input.frames,
                        snakemake.input.encoder, snakemake.output.episodes, snakemake.output.steps, p.seed,
-                       epoch=p.policy["epochs"], threads=snakemake.threads, policy=p.policy,
+                       epochs=[p.policy["epochs"]], threads=snakemake.threads, policy=p.policy,
                        validation_episodes=p.episodes))

@@ -9,6 +9,6 @@ with runlog.to_file(snakemake.log[0]):
     episodes = jobs.run_job(
         p.kind, w.exp, config, snakemake.input.checkpoints, snakemake.input.frames, snakemake.input.encoder,
         snakemake.output.episodes, snakemake.output.steps, p.seed, run=int(w.get("run", 0)),
-        best_json=snakemake.input.get("best"), epoch=int(w.epoch) if "epoch" in w.keys() else None,
+        best_json=snakemake.input.get("best"), epochs=p.get("epochs"),
         threads=snakemake.threads, policy=p.policy)
     print(episodes)

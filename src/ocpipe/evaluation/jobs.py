@@ -79,8 +79,8 @@ def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None 
     Each sweep row carries its epoch's open-loop error, so closed-loop SR and open-loop error sit side by side."""
     log = pl.read_parquet(train_log) if train_log else None
     rows = []
-    for f in sweep_files:
-        eps = pl.read_parquet(f)
+    sweep = pl.concat([pl.read_parquet(f) for f in sweep_files])
+    for (_,), eps in sweep.group_by("checkpoint", maintain_order=True):
         k, n = pooled.successes(eps)
         row = {"checkpoint": int(eps["checkpoint"][0]), "sr": closed_loop.success_rate(eps), "successes": k,
                "mean_return": float(eps["return"].mean()), "episodes": n}
@@ -104,24 +104,27 @@ def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None 
 
 
 def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_ckpt, out_episodes, out_steps,
-            seed: int, run: int = 0, best_json=None, epoch: int | None = None, threads: int = 1,
+            seed: int, run: int = 0, best_json=None, epochs: list[int] | None = None, threads: int = 1,
             progress: bool = True, policy: dict | None = None, validation_episodes: int = 0) -> pl.DataFrame:
     """``exp``: the policy's id (paths.policy_id: its replicate picks its block of test episodes). ``policy``: the
     experiment's resolved settings; a checkpoint trained with another task, camera set, resolution or encoder is
-    refused before the simulator starts. ``kind`` 'validation' (a lever) runs ``validation_episodes`` episodes of
-    the validation pool."""
-    if epoch is None:
-        epoch = json.loads(Path(best_json).read_text())["epoch"]
-    ckpt = Path(checkpoints_dir) / f"epoch_{epoch:04d}.pt"
-    if not ckpt.is_file():
-        raise FileNotFoundError(f"{ckpt}: experiment {exp} saved no checkpoint at epoch {epoch}")
+    refused before the simulator starts. ``epochs``: the checkpoints to run, one after another on the same seeds in
+    one simulator (a sweep; each row names its checkpoint), else ``best_json``'s. ``kind`` 'validation' (a lever)
+    runs ``validation_episodes`` episodes of the validation pool."""
+    if epochs is None:
+        epochs = [json.loads(Path(best_json).read_text())["epoch"]]
+    ckpts = [Path(checkpoints_dir) / f"epoch_{e:04d}.pt" for e in epochs]
+    for epoch, ckpt in zip(epochs, ckpts, strict=True):
+        if not ckpt.is_file():
+            raise FileNotFoundError(f"{ckpt}: experiment {exp} saved no checkpoint at epoch {epoch}")
     import torch
 
     from ..util.devices import pick_device
 
     torch.set_num_threads(threads)
-    loop = closed_loop.ClosedLoop(ckpt, config, frames, encoder_ckpt or None,
+    loop = closed_loop.ClosedLoop(ckpts[0], config, frames, encoder_ckpt or None,
                                  device=pick_device(config["evaluation"]["device"]), expected=policy)
+    episode_frames, step_frames = [], []
     try:
         if kind == "validation":  # a lever: the first episodes of the validation pool's shuffle
             seeds = validation_seeds(config["evaluation"], validation_episodes, seed)
@@ -129,10 +132,16 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
             episode_seeds = list(open_store(frames).attrs["episode_seeds"]) if kind == "train_seeds" else None
             seeds = seeds_for(kind, config["evaluation"], seed, run, episode_seeds, split_policy(exp)[1])
         pool = {"train_seeds": "demos", "validation": "validation"}.get(kind, "test")
-        ids = {"exp": exp, "checkpoint": epoch, "run": run, "kind": kind, "seed_pool": pool}
-        episodes, steps = closed_loop.run(loop, seeds, ids, progress)
+        for i, (epoch, ckpt) in enumerate(zip(epochs, ckpts, strict=True)):
+            if i:
+                loop.load(ckpt)
+            ids = {"exp": exp, "checkpoint": epoch, "run": run, "kind": kind, "seed_pool": pool}
+            episodes, steps = closed_loop.run(loop, seeds, ids, progress)
+            episode_frames.append(episodes)
+            step_frames.append(steps)
     finally:
         loop.close()
+    episodes, steps = pl.concat(episode_frames), pl.concat(step_frames)
     with atomic_path(out_steps) as tmp:
         steps.write_parquet(tmp)
     with atomic_path(out_episodes) as tmp:

@@ -12,7 +12,6 @@ from pathlib import Path
 import polars as pl
 
 from .. import paths
-from ..config.experiments import resolve, saved_epochs
 
 EPISODES = paths.EPISODES
 
@@ -71,13 +70,8 @@ def _stability_files(config: dict, pid: str, runs_dir: str) -> list[str]:
             for r in range(config["evaluation"]["stability_runs"])]
 
 
-def _sweep_files(config: dict, pid: str, runs_dir: str) -> list[str]:
-    return [paths.in_runs(paths.SWEEP, runs_dir, exp=pid, epoch=f"{e:04d}") + EPISODES
-            for e in saved_epochs(resolve(config, paths.split_policy(pid)[0]))]
-
-
 STABILITY = Input("stability", _stability_files, _frame)  # the stability runs' episodes
-SWEEP = Input("sweep", _sweep_files, _frame)  # every saved checkpoint's sweep episodes
+SWEEP = Input("sweep", _one(paths.SWEEP + EPISODES), _frame)  # every saved checkpoint's sweep episodes
 FAILURES = Input("failures", _one(paths.FAILURES), _frame)  # the failure classes of the classified episodes
 TRAIN_LOG = Input("train_log", _one(paths.TRAIN_LOG), _frame)  # per-epoch losses and seconds
 CHECKPOINTS = Input("checkpoints", _one(paths.CHECKPOINTS), _model_facts)  # the model's size
