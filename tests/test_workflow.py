@@ -529,8 +529,8 @@ def test_an_episode_is_the_same_in_a_fresh_env_and_after_other_episodes(tiny_run
 
 
 def test_a_sweep_runs_a_policys_checkpoints_in_one_simulator_as_each_would_run_alone(tiny_run, tmp_path):
-    """The sweep job puts one checkpoint after another in one loop (ClosedLoop.load): each checkpoint's episodes
-    are the ones a job of its own gives, and a checkpoint of another policy is refused."""
+    """The sweep job runs one checkpoint after another in one process: each checkpoint's episodes are the ones a
+    job of its own gives, and a checkpoint of another policy is refused."""
     import polars as pl
 
     from ocpipe.evaluation import jobs
@@ -552,7 +552,7 @@ def test_a_sweep_runs_a_policys_checkpoints_in_one_simulator_as_each_would_run_a
         return pl.read_parquet(f"{out}.episodes.parquet"), pl.read_parquet(f"{out}.steps.parquet")
 
     both, first, second = sweep("both", [1, 2]), sweep("first", [1]), sweep("second", [2])
-    # exact: the same operations on the same inputs, if the loop keeps nothing of the checkpoint before
+    # exact: the same operations on the same inputs, if the process keeps nothing of the checkpoint before
     assert both[0].equals(pl.concat([first[0], second[0]]))
     assert both[1].equals(pl.concat([first[1], second[1]]))  # exact: as above, step by step
     assert both[0]["checkpoint"].to_list() == [1, 1, 2, 2]  # exact: two episodes per checkpoint (tiny.yaml)

@@ -1,7 +1,7 @@
 # Closed-loop evaluation (docs/study.md, Evaluation protocol): a sweep job per policy (all its checkpoints in one
-# simulator, so the job's start-up of imports, simulator and encoder is paid once), the best checkpoint, stability
-# runs (one job each), Table 5.5's training-time runs, training-seed runs, failure classification (docs/study.md,
-# Failure taxonomy), and the study's tables and figures (docs/study.md, Tables and figures).
+# process, so a job's start-up, mostly imports, is paid once), the best checkpoint, stability runs (one job each),
+# Table 5.5's training-time runs, training-seed runs, failure classification (docs/study.md, Failure taxonomy), and
+# the study's tables and figures (docs/study.md, Tables and figures).
 from ocpipe.bookkeeping import report_page
 from ocpipe.study import builds, conditions, findings, registry, targets
 

@@ -101,7 +101,6 @@ class ClosedLoop:
     def __init__(self, checkpoint: str | Path, config: dict, frames_store: str | Path,
                  encoder_checkpoint: str | Path | None, device: str = "cpu", expected: dict | None = None):
         self.device = torch.device(device)
-        self._inputs = frames_store, encoder_checkpoint, expected
         self.model, self.policy, self.meta = load_policy(checkpoint, self.device)
         p = self.policy
         check_checkpoint(checkpoint, p, self.meta, frames_store, encoder_checkpoint, expected)
@@ -127,17 +126,6 @@ class ClosedLoop:
 
     def close(self) -> None:
         self.env.close()
-
-    def load(self, checkpoint: str | Path) -> None:
-        """Put another checkpoint of the same policy in the loop (a sweep's next epoch): the environment and the
-        encoder stay, which saves a job's start-up (imports, simulator, encoder) for every checkpoint after the
-        first. A checkpoint of a policy with other settings is refused."""
-        model, policy, meta = load_policy(checkpoint, self.device)
-        check_checkpoint(checkpoint, policy, meta, *self._inputs)
-        if policy != self.policy:
-            raise ValueError(f"{checkpoint}: a checkpoint of another policy than the loop's (its settings differ: "
-                             f"{policy} against {self.policy})")
-        self.model, self.policy, self.meta = model, policy, meta
 
     def settings(self) -> dict:
         """The evaluation settings this loop runs with, recorded in every episode row it produces."""

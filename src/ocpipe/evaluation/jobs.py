@@ -109,7 +109,7 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
     """``exp``: the policy's id (paths.policy_id: its replicate picks its block of test episodes). ``policy``: the
     experiment's resolved settings; a checkpoint trained with another task, camera set, resolution or encoder is
     refused before the simulator starts. ``epochs``: the checkpoints to run, one after another on the same seeds in
-    one simulator (a sweep; each row names its checkpoint), else ``best_json``'s. ``kind`` 'validation' (a lever)
+    one process (a sweep; each row names its checkpoint), else ``best_json``'s. ``kind`` 'validation' (a lever)
     runs ``validation_episodes`` episodes of the validation pool."""
     if epochs is None:
         epochs = [json.loads(Path(best_json).read_text())["epoch"]]
@@ -122,25 +122,29 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
     from ..util.devices import pick_device
 
     torch.set_num_threads(threads)
-    loop = closed_loop.ClosedLoop(ckpts[0], config, frames, encoder_ckpt or None,
-                                 device=pick_device(config["evaluation"]["device"]), expected=policy)
-    episode_frames, step_frames = [], []
-    try:
-        if kind == "validation":  # a lever: the first episodes of the validation pool's shuffle
-            seeds = validation_seeds(config["evaluation"], validation_episodes, seed)
-        else:
-            episode_seeds = list(open_store(frames).attrs["episode_seeds"]) if kind == "train_seeds" else None
-            seeds = seeds_for(kind, config["evaluation"], seed, run, episode_seeds, split_policy(exp)[1])
-        pool = {"train_seeds": "demos", "validation": "validation"}.get(kind, "test")
-        for i, (epoch, ckpt) in enumerate(zip(epochs, ckpts, strict=True)):
-            if i:
-                loop.load(ckpt)
+    if kind == "validation":  # a lever: the first episodes of the validation pool's shuffle
+        seeds = validation_seeds(config["evaluation"], validation_episodes, seed)
+    else:
+        episode_seeds = list(open_store(frames).attrs["episode_seeds"]) if kind == "train_seeds" else None
+        seeds = seeds_for(kind, config["evaluation"], seed, run, episode_seeds, split_policy(exp)[1])
+    pool = {"train_seeds": "demos", "validation": "validation"}.get(kind, "test")
+    episode_frames, step_frames, first = [], [], None
+    for epoch, ckpt in zip(epochs, ckpts, strict=True):
+        # a new simulator for each checkpoint, as a job of its own would build: the physics engine keeps contact
+        # state across resets, so an episode run after others can differ from a fresh one in round-off. The job's
+        # start-up that is saved is the imports, not the simulator.
+        loop = closed_loop.ClosedLoop(ckpt, config, frames, encoder_ckpt or None,
+                                     device=pick_device(config["evaluation"]["device"]), expected=policy)
+        try:
+            if first is not None and loop.policy != first:
+                raise ValueError(f"{ckpt}: a checkpoint of another policy than {ckpts[0]} (its settings differ)")
+            first = loop.policy
             ids = {"exp": exp, "checkpoint": epoch, "run": run, "kind": kind, "seed_pool": pool}
             episodes, steps = closed_loop.run(loop, seeds, ids, progress)
-            episode_frames.append(episodes)
-            step_frames.append(steps)
-    finally:
-        loop.close()
+        finally:
+            loop.close()
+        episode_frames.append(episodes)
+        step_frames.append(steps)
     episodes, steps = pl.concat(episode_frames), pl.concat(step_frames)
     with atomic_path(out_steps) as tmp:
         steps.write_parquet(tmp)
