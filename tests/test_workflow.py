@@ -528,7 +528,7 @@ def test_an_episode_is_the_same_in_a_fresh_env_and_after_other_episodes(tiny_run
     assert both_steps.filter(pl.col("seed") == seeds[1]).equals(alone_steps)  # exact: as above
 
 
-def test_a_sweep_runs_a_policys_checkpoints_in_one_simulator_as_each_would_run_alone(tiny_run, tmp_path):
+def test_a_sweep_job_runs_a_policys_checkpoints_as_a_job_each_would(tiny_run, tmp_path):
     """The sweep job runs one checkpoint after another in one process: each checkpoint's episodes are the ones a
     job of its own gives, and a checkpoint of another policy is refused."""
     import polars as pl
