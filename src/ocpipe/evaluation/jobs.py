@@ -128,13 +128,13 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
         episode_seeds = list(open_store(frames).attrs["episode_seeds"]) if kind == "train_seeds" else None
         seeds = seeds_for(kind, config["evaluation"], seed, run, episode_seeds, split_policy(exp)[1])
     pool = {"train_seeds": "demos", "validation": "validation"}.get(kind, "test")
+    device = pick_device(config["evaluation"]["device"])
     episode_frames, step_frames, first = [], [], None
     for epoch, ckpt in zip(epochs, ckpts, strict=True):
         # a new simulator for each checkpoint, as a job of its own would build: the physics engine keeps contact
         # state across resets, so an episode run after others can differ from a fresh one in round-off. The job's
         # start-up that is saved is the imports, not the simulator.
-        loop = closed_loop.ClosedLoop(ckpt, config, frames, encoder_ckpt or None,
-                                     device=pick_device(config["evaluation"]["device"]), expected=policy)
+        loop = closed_loop.ClosedLoop(ckpt, config, frames, encoder_ckpt or None, device=device, expected=policy)
         try:
             if first is not None and loop.policy != first:
                 raise ValueError(f"{ckpt}: a checkpoint of another policy than {ckpts[0]} (its settings differ)")
