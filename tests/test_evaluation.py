@@ -6,6 +6,8 @@ from tolerances import EPS32
 from ocpipe.config.errors import ConfigError
 from ocpipe.config.validate import validate
 from ocpipe.evaluation import closed_loop, jobs, taxonomy
+from ocpipe.evaluation.best import best_checkpoint
+from ocpipe.stats import pooled
 from ocpipe.study import inputs, registry, report, tables
 
 RULES = {"idle_variance": 0.001, "near_miss_m": 0.10, "stack_near_m": 0.10, "lift_m": 0.02}
@@ -158,7 +160,7 @@ def episodes(run, successes, steps_, trivial=None):
 def test_trivial_successes_count_in_neither_numerator_nor_total():
     eps = episodes(0, [True, True, False, False], [5, 50, 100, 100], trivial=[True, False, False, False])
     # exact: one division of integer counts, 1 / 3 on both sides; approx only because 1/3 has no finite binary form
-    assert closed_loop.success_rate(eps) == pytest.approx(1 / 3)
+    assert pooled.success_rate(eps) == pytest.approx(1 / 3)
 
 
 def test_table5_1_from_known_rows():
@@ -203,7 +205,7 @@ def test_best_checkpoint_takes_the_sweep_leader_only_where_fisher_resolves_it(tm
     log = tmp_path / "train_log.parquet"
     pl.DataFrame({"epoch": [8, 16], "val_joint_err_rad": [0.0119, 0.0108]}).write_parquet(log)
     # 3/6 against 1/6 (one-sided p = 0.27): the lower open-loop error decides
-    best = jobs.best_checkpoint(sweep_files(tmp_path, ((8, 3, 6, 1.0), (16, 1, 6, 1.0))), log)
+    best = best_checkpoint(sweep_files(tmp_path, ((8, 3, 6, 1.0), (16, 1, 6, 1.0))), log)
     assert (best["epoch"], best["chosen_by"]) == (16, "open-loop error")
     # derived: p = P(X >= 3), X hypergeometric = (224 + 28) / 924 = 3/11, two pmf terms scipy evaluates in float64
     # (error ~1e-15); approx's 1e-6 default covers it and is far below the gap to a one-count change of p (> 0.1)
@@ -211,17 +213,17 @@ def test_best_checkpoint_takes_the_sweep_leader_only_where_fisher_resolves_it(tm
     sweep = {r["checkpoint"]: r for r in best["sweep"]}
     assert (sweep[8]["successes"], sweep[8]["episodes"], sweep[16]["val_joint_err_rad"]) == (3, 6, 0.0108)
     # 15/20 against 3/20 resolves it
-    best = jobs.best_checkpoint(sweep_files(tmp_path, ((8, 15, 20, 1.0), (16, 3, 20, 1.0))), log)
+    best = best_checkpoint(sweep_files(tmp_path, ((8, 15, 20, 1.0), (16, 3, 20, 1.0))), log)
     assert (best["epoch"], best["chosen_by"]) == (8, "sweep SR") and best["sweep_p"] < 0.05
     # alpha is the caller's: at 0.5 the 3/6 leader is taken
-    assert jobs.best_checkpoint(sweep_files(tmp_path, ((8, 3, 6, 1.0), (16, 1, 6, 1.0))), log, alpha=0.5)["epoch"] == 8
+    assert best_checkpoint(sweep_files(tmp_path, ((8, 3, 6, 1.0), (16, 1, 6, 1.0))), log, alpha=0.5)["epoch"] == 8
 
 
 def test_best_checkpoint_without_open_loop_error_falls_back_to_return_then_epoch(tmp_path):
     files = sweep_files(tmp_path, ((10, 1, 2, 3.0), (20, 1, 2, 5.0), (30, 0, 2, 9.0)))
-    assert jobs.best_checkpoint(files)["epoch"] == 30
+    assert best_checkpoint(files)["epoch"] == 30
     files = sweep_files(tmp_path, ((10, 1, 2, 5.0), (20, 1, 2, 5.0)))
-    assert jobs.best_checkpoint(files)["epoch"] == 20
+    assert best_checkpoint(files)["epoch"] == 20
 
 
 def test_report_writes_tables_from_run_files(tmp_path, one_policy_config):

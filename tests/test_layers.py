@@ -58,5 +58,5 @@ def test_the_import_reader_sees_every_form_of_import(tmp_path, monkeypatch):
 
 def test_the_import_reader_sees_relative_and_absolute_imports():
     found = imported_packages("evaluation")
-    assert "stats" in found["evaluation/jobs.py"] and "policy" in found["evaluation/closed_loop.py"]
+    assert "stats" in found["evaluation/best.py"] and "policy" in found["evaluation/closed_loop.py"]
     assert "study" in imported_packages("bookkeeping")["bookkeeping/compute.py"]

@@ -244,9 +244,3 @@ def run(loop: ClosedLoop, seeds: list[int], ids: dict, progress: bool = True) ->
         bar.set_postfix(sr=f"{sr:.2f}")
     log.info("%d episodes in %.1f s", len(seeds), time.perf_counter() - t0)
     return pl.DataFrame(rows), pl.concat(step_frames, how="vertical")
-
-
-def success_rate(episodes: pl.DataFrame) -> float:
-    """Share of episodes that succeeded non-trivially; trivial successes count in neither numerator nor total."""
-    kept = episodes.filter(~pl.col("trivial"))
-    return float(kept["success"].mean()) if len(kept) else float("nan")

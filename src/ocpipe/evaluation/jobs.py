@@ -4,7 +4,6 @@ run)."""
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -13,8 +12,7 @@ import polars as pl
 from ..config.seed_pools import pool_problems, pools, table_blocks
 from ..frames.store import open_store
 from ..paths import split_policy
-from ..stats import pooled
-from ..util.atomic import atomic_path, write_json
+from ..util.atomic import atomic_path
 from . import closed_loop
 
 # random streams: (root seed, purpose)
@@ -60,47 +58,6 @@ def training_seeds(evaluation_cfg: dict, episode_seeds: list[int], seed: int) ->
     n = min(evaluation_cfg["stability_episodes"], len(episode_seeds))
     rng = np.random.default_rng([seed, TRAIN_SEEDS])
     return sorted(int(s) for s in rng.choice(np.asarray(episode_seeds), size=n, replace=False))
-
-
-OPEN_LOOP_COLUMNS = ("val_joint_err_rad", "val_first_joint_err_rad", "val_gripper_agree")
-
-
-def best_checkpoint(sweep_files: list[str | Path], train_log: str | Path | None = None,
-                    alpha: float = pooled.ALPHA) -> dict:
-    """The checkpoint the sweep's episodes can tell apart from the rest, else the one with the lowest open-loop
-    joint error on the held-out demos.
-
-    The default choice is the lowest open-loop error (with ``train_log``; ties and no log: the higher mean return,
-    then the later epoch). The checkpoint with the highest sweep SR replaces it only where Fisher's exact test
-    (one-sided) says its successes beat the default's at p < ``alpha``. A sweep of a few episodes resolves almost
-    nothing: in one default build 3/6 against 1/6 (p = 0.27) picked goal3d's epoch 8, which then succeeded in 21 of
-    119 stability episodes, while the later epoch had the lower open-loop error.
-
-    Each sweep row carries its epoch's open-loop error, so closed-loop SR and open-loop error sit side by side."""
-    log = pl.read_parquet(train_log) if train_log else None
-    rows = []
-    sweep = pl.concat([pl.read_parquet(f) for f in sweep_files])
-    for (_,), eps in sweep.group_by("checkpoint", maintain_order=True):
-        k, n = pooled.successes(eps)
-        row = {"checkpoint": int(eps["checkpoint"][0]), "sr": closed_loop.success_rate(eps), "successes": k,
-               "mean_return": float(eps["return"].mean()), "episodes": n}
-        if log is not None:
-            at = log.filter(pl.col("epoch") == row["checkpoint"])
-            row.update({c: float(at[c][0]) for c in OPEN_LOOP_COLUMNS if c in at.columns and len(at)})
-        rows.append(row)
-
-    def open_loop_rank(r):
-        err = r.get("val_joint_err_rad", float("nan"))
-        return (0.0 if math.isnan(err) else -err, r["mean_return"], r["checkpoint"])
-
-    default = max(rows, key=open_loop_rank)
-    leader = max(rows, key=lambda r: (-1.0 if math.isnan(r["sr"]) else r["sr"], open_loop_rank(r)))
-    counts = [(r["successes"], r["episodes"]) for r in (leader, default)]
-    p = 1.0 if leader is default else pooled.fisher(*counts, "greater")
-    resolved = p < alpha
-    rows.sort(key=open_loop_rank)
-    return {"epoch": (leader if resolved else default)["checkpoint"],
-            "chosen_by": "sweep SR" if resolved else "open-loop error", "sweep_p": p, "alpha": alpha, "sweep": rows}
 
 
 def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_ckpt, out_episodes, out_steps,
@@ -151,9 +108,3 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
     with atomic_path(out_episodes) as tmp:
         episodes.write_parquet(tmp)
     return episodes
-
-
-def write_best(sweep_files, out_json, train_log=None, alpha: float = pooled.ALPHA) -> dict:
-    best = best_checkpoint(sweep_files, train_log, alpha)
-    write_json(out_json, best)
-    return best

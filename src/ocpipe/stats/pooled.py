@@ -36,6 +36,12 @@ def successes(episodes: pl.DataFrame) -> tuple[int, int]:
     return int(kept["success"].sum()), len(kept)
 
 
+def success_rate(episodes: pl.DataFrame) -> float:
+    """Share of episodes that succeeded non-trivially; trivial successes count in neither numerator nor total."""
+    k, n = successes(episodes)
+    return k / n if n else float("nan")
+
+
 def interval(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
     """The Wilson score interval of a success rate of k in n: the spread a single run's SR can claim."""
     if n == 0:

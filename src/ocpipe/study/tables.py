@@ -8,7 +8,6 @@ import numpy as np
 import polars as pl
 
 from ..evaluation import taxonomy
-from ..evaluation.closed_loop import success_rate
 from ..stats import by_policy, pooled
 from ..util.atomic import atomic_path
 from .inputs import BEST, CHECKPOINTS, STABILITY, TRAIN_LOG, TRAIN_SEEDS, TRAINING_TIME, Input
@@ -26,7 +25,7 @@ def _runs_summary(episodes: pl.DataFrame) -> dict:
     srs, lengths, sizes = [], [], []
     for _, run in episodes.group_by("run", maintain_order=True):
         kept = run.filter(~pl.col("trivial"))
-        srs.append(success_rate(run))
+        srs.append(pooled.success_rate(run))
         lengths.append(float(kept["steps"].mean()) if len(kept) else float("nan"))
         sizes.append(len(run))
     k, n = pooled.successes(episodes)
