@@ -10,9 +10,12 @@ import pytest
 from synthetic_runs import classes, write_rows
 
 from ocpipe import paths
+from ocpipe.config import replicates
+from ocpipe.config.errors import ConfigError
 from ocpipe.config.seed_pools import pool_problems
+from ocpipe.config.validate import validate
 from ocpipe.evaluation.jobs import seeds_for
-from ocpipe.study import inputs, report, targets
+from ocpipe.study import conditions, inputs, report, targets
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -30,6 +33,40 @@ def test_a_build_names_its_policies_from_the_offset(default_config):
     assert targets.policies(default_config, "goal2d") == ["goal2d", "goal2d@1", "goal2d@2", "goal2d@3", "goal2d@4"]
     second = {**default_config, "replicate_seed_offset": 5}
     assert targets.policies(second, "goal2d") == [f"goal2d@{k}" for k in range(5, 10)]
+
+
+def test_a_capped_table_reads_each_rows_first_policies_and_trains_no_more(default_config):
+    capped = {**default_config, "table_replicates": {"table5_3": 3, "table5_7": 3, "table5_9": 7}}
+    # goal2d is a row of 5.1 (K = 5) and of 5.3 (capped): 5.3 reads its first 3, like its other rows
+    assert targets.policies(capped, "goal2d", "table5_3") == ["goal2d", "goal2d@1", "goal2d@2"]
+    assert targets.policies(capped, "goal2d") == targets.policies(capped, "goal2d", "table5_1")
+    assert len(targets.policies(capped, "goal2d", "table5_1")) == 5
+    assert replicates.of_table(capped, "table5_9") == 5  # a cap above K leaves K
+    # an experiment only capped tables read trains only as many policies as they read
+    assert targets.policies(capped, "window40") == ["window40", "window40@1", "window40@2"]
+    files = targets.inputs(capped, "table5_3")
+    assert "results/runs/goal2d_exact_224@2/stability/run_0.episodes.parquet" in files
+    assert not [f for f in files if "@3/" in f or "@4/" in f]
+    every = [f for t in capped["tables"] for f in targets.inputs(capped, t)]
+    assert not [f for f in every if f.startswith(("results/runs/window40@3/", "results/runs/goal2d_exact@3/"))]
+    assert "results/runs/goal2d@4/stability/run_0.episodes.parquet" in every
+
+
+def test_the_line_under_a_table_and_the_findings_note_say_how_many_policies_a_row_is(default_config, tmp_path):
+    capped = {**default_config, "table_replicates": {"table5_3": 3}}
+    assert "Each row: 3 trained policies." in conditions.footer(capped, "table5_3")
+    assert "Each row: 5 trained policies." in conditions.footer(capped, "table5_1")
+    note = report._tests_note(capped, "findings")
+    assert "5 (Table 5.1, Table 5.2, Table 5.4" in note and "3 (Table 5.3)" in note
+    one = {**default_config, "replicates": 1}
+    assert conditions.footer(one, "table5_1").count("Each row: one trained policy.") == 1
+    assert report._tests_note(one, "findings_main").startswith("One policy per row")
+
+
+def test_a_cap_on_a_table_the_config_lacks_is_named(default_config):
+    bad = {**default_config, "table_replicates": {"table5_33": 3}}
+    with pytest.raises(ConfigError, match=r"table_replicates\.table5_33: no such table under tables"):
+        validate(bad)
 
 
 def test_each_policy_meets_its_own_blocks_the_same_for_every_row_and_policy_0_keeps_its_seeds(default_config):
@@ -160,9 +197,9 @@ def test_a_row_without_weights_keeps_the_columns_of_its_replicated_neighbours(de
 
     from ocpipe.study import registry, tables
 
-    runs = tmp_path / "runs"
-    write_rows(default_config, runs, {"encoder_slots_ssl": _spread(10, [0, 2, 4, 6, 8], 110, classes(1, 1, 20, n=40))})
-    rows = report.table_rows(default_config, "table5_4", (inputs.STABILITY,), str(runs))
+    runs, uncapped = tmp_path / "runs", {**default_config, "table_replicates": {}}  # Table 5.4 at K = 5
+    write_rows(uncapped, runs, {"encoder_slots_ssl": _spread(10, [0, 2, 4, 6, 8], 110, classes(1, 1, 20, n=40))})
+    rows = report.table_rows(uncapped, "table5_4", (inputs.STABILITY,), str(runs))
     for row in rows:
         if row.status is None:
             row.data[inputs.TRAIN_LOG] = pl.DataFrame({"epoch": [1], "seconds": [60.0]})
@@ -176,7 +213,7 @@ def test_a_row_without_weights_keeps_the_columns_of_its_replicated_neighbours(de
 def test_each_policy_keeps_its_own_best_epoch_and_peak_reward(default_config, tmp_path):
     import json
 
-    runs = tmp_path / "runs"
+    runs, default_config = tmp_path / "runs", {**default_config, "table_replicates": {}}  # Table 5.7 at K = 5
     write_rows(default_config, runs, {e: _spread(4, [0, 1, 2, 3, 4], 120, classes(1, 1, 5, n=40))
                                       for e in ("pure_visual", "window20", "window40")})
     # policy 3 of T=5 picks its first checkpoint, whose sweep returned 2.0 per episode; the others their last (1.0)

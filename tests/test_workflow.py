@@ -341,6 +341,23 @@ def test_findings_of_the_main_job_are_built_from_its_episodes(tiny_run):
     assert "Welch t over policies" in f["Test"][0]
 
 
+def test_a_job_of_several_threads_outranks_as_many_one_thread_jobs(default_config):
+    """Snakemake starts the ready jobs whose priorities sum highest: a t-thread job must beat any t one-thread ones,
+    or it waits while they come one after another (ocpipe.config.scheduling)."""
+    from ocpipe.config import scheduling
+    from ocpipe.config.experiments import resolve
+
+    tasks = ("PickCube-v1", "StackCube-v1")
+    policies = [resolve(default_config, e) for e in default_config["experiments"]]
+    narrow = [scheduling.task_priority(t, default_config) for t in tasks] + [
+        scheduling.policy_priority(p, default_config) for p in policies]
+    assert max(narrow) == scheduling.task_priority("StackCube-v1", default_config)  # StackCube's stores first
+    for threads in (2, 3, 8):
+        wide = [scheduling.task_priority(t, default_config, threads) for t in tasks] + [
+            scheduling.policy_priority(p, default_config, threads) for p in policies]
+        assert min(wide) > threads * max(narrow)
+
+
 def test_dry_run_of_all_audits_the_whole_study_on_both_configs(tmp_path):
     default = snakemake(tmp_path, "-n", "all").stdout
     thesis = snakemake(tmp_path, "-n", "all", "--configfile", str(REPO / "config" / "thesis.yaml")).stdout
@@ -368,8 +385,11 @@ def test_dry_run_of_all_audits_the_whole_study_on_both_configs(tmp_path):
         if job:
             found = re.search(r"priority: (\d+)", block)
             priority[job.groups()] = int(found.group(1)) if found else 0
-    assert priority[("features", "task=StackCube-v1, cams=native, res=128, encoder=slots_ssl")] == 2
-    assert priority[("features", "task=PickCube-v1, cams=dual, res=128, encoder=slots_ssl")] == 0
+    # store jobs gate every policy of their task: before any policy job; the encoder's 2-thread training before any
+    # two 1-thread jobs
+    assert priority[("features", "task=StackCube-v1, cams=native, res=128, encoder=slots_ssl")] == 5
+    assert priority[("features", "task=PickCube-v1, cams=dual, res=128, encoder=slots_ssl")] == 3
+    assert re.search(r"rule train_slots_ssl:[^\n]*\n(?:\s+\S[^\n]*\n)*?\s+priority: 14\n", default)
     assert priority[("train", "exp=stack_native")] == priority[("sweep", "exp=stack_native")] == 2
     assert priority[("train", "exp=window40")] == priority[("stability", "exp=window40, run=0")] == 1
     assert priority[("train", "exp=goal2d")] == priority[("train", "exp=state_control")] == 0

@@ -128,14 +128,18 @@ def policy_of(w):
     return _exp.resolve(config, paths.split_policy(w.exp)[0])
 
 
-def store_priority(w):
-    """Long chains start first (ocpipe.config.scheduling): a store job by its task."""
-    return scheduling.task_priority(w.task, config)
+def store_priority(stage):
+    """Long chains start first, a job of several threads before one-thread ones (ocpipe.config.scheduling): a store
+    job of config `compute` ``stage`` by its task and threads."""
+    return lambda w: scheduling.task_priority(w.task, config, threads_of(stage))
 
 
-def policy_priority(w):
-    """Long chains start first (ocpipe.config.scheduling): a policy's training and evaluation jobs by its settings."""
-    return scheduling.policy_priority(policy_of(w) if w.get("exp") else lever_of(w), config)
+def policy_priority(stage):
+    """Long chains start first, a job of several threads before one-thread ones (ocpipe.config.scheduling): a
+    policy's training and evaluation jobs by its settings and the threads of config `compute` ``stage``."""
+    return lambda w: scheduling.policy_priority(
+        policy_of(w) if w.get("exp") else lever_of(w), config, threads_of(stage)
+    )
 
 
 def training_seed(w):

@@ -12,7 +12,7 @@ if config["demos"]["source"] == "motionplanning":
             "results/logs/demos_shard/{task}_shard{shard}.log",
         benchmark:
             "results/benchmarks/demos_shard/{task}_shard{shard}.tsv"
-        priority: store_priority
+        priority: store_priority("demos")
         conda:
             "../envs/ocpipe.yaml"
         threads: threads_of("demos")

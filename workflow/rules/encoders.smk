@@ -13,6 +13,7 @@ rule train_slots_ssl:
         "results/logs/train_slots_ssl.log",
     benchmark:
         "results/benchmarks/train_slots_ssl.tsv"
+    priority: scheduling.task_priority(config["policy"]["task"], config, threads_of("train_slots_ssl"))
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("train_slots_ssl")
@@ -37,6 +38,7 @@ rule train_spot_slots_on_dino:
         "results/logs/train_spot_slots_on_dino.log",
     benchmark:
         "results/benchmarks/train_spot_slots_on_dino.tsv"
+    priority: scheduling.task_priority(config["policy"]["task"], config, threads_of("train_spot_slots"))
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("train_spot_slots")

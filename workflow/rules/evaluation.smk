@@ -20,6 +20,7 @@ localrules:
 TABLE_CFG = cfg(
     "profile",
     "replicates",
+    "table_replicates",
     "replicate_seed_offset",
     "tables",
     "experiments",
@@ -50,7 +51,7 @@ rule sweep:
         "results/logs/sweep/{exp}.log",
     benchmark:
         "results/benchmarks/sweep/{exp}.tsv"
-    priority: policy_priority
+    priority: policy_priority("evaluate")
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("evaluate")

@@ -12,7 +12,7 @@ rule features:
         "results/logs/features/{task}_{cams}_{res}_{encoder}.log",
     benchmark:
         "results/benchmarks/features/{task}_{cams}_{res}_{encoder}.tsv"
-    priority: store_priority
+    priority: store_priority("features")
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("features")
@@ -37,7 +37,7 @@ rule scenes_shard:
         "results/logs/scenes_shard/{task}_{cams}_{res}_{encoder}_shard{shard}.log",
     benchmark:
         "results/benchmarks/scenes_shard/{task}_{cams}_{res}_{encoder}_shard{shard}.tsv"
-    priority: store_priority
+    priority: store_priority("frames")
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("frames")

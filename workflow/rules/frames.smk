@@ -13,7 +13,7 @@ rule frames_shard:
         "results/logs/frames_shard/{task}_{cams}_{res}_shard{shard}.log",
     benchmark:
         "results/benchmarks/frames_shard/{task}_{cams}_{res}_shard{shard}.tsv"
-    priority: store_priority
+    priority: store_priority("frames")
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("frames")

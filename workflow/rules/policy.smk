@@ -12,7 +12,7 @@ rule train:
         "results/logs/train/{exp}.log",
     benchmark:
         "results/benchmarks/train/{exp}.tsv"
-    priority: policy_priority
+    priority: policy_priority("train")
     conda:
         "../envs/ocpipe.yaml"
     threads: threads_of("train")

@@ -156,6 +156,8 @@ def _cross_field_problems(config: dict) -> list[str]:
         for label, exp in rows.items():
             if exp not in config["experiments"]:
                 problems.append(f"  tables.{table}.{label}: experiment {exp!r} is not defined under experiments")
+    problems += [f"  table_replicates.{table}: no such table under tables (defined: {', '.join(config['tables'])})"
+                 for table in config["table_replicates"] if table not in config["tables"]]
     problems += pool_problems(config["evaluation"], policies_drawn(config))
     if config["evaluation"]["readout_filter"] in DIAGNOSTIC_FILTERS:
         problems.append(f"  evaluation.readout_filter: {config['evaluation']['readout_filter']!r} is a diagnostic "

@@ -85,7 +85,7 @@ class Welch:
     def of(cls, a: PolicyValues, b: PolicyValues) -> Welch:
         if a.policies < 2 or b.policies < 2:
             raise ValueError(f"rows of {a.policies} and {b.policies} policies: the spread between policies needs "
-                             "at least 2 per row (config `replicates`)")
+                             "at least 2 per row (config `replicates`, `table_replicates`)")
         pooled = None
         if a.episodes is not None and b.episodes is not None:
             # half a success added: rows that never (or always) succeed still carry episode noise, so a gap between
@@ -180,7 +180,7 @@ def _against(a: PolicyValues, share: float) -> Welch:
     of a policy at that share, the rate the claim's boundary puts it at)."""
     if a.policies < 2:
         raise ValueError(f"a row of {a.policies} policy: the spread between policies needs at least 2 (config "
-                         "`replicates`)")
+                         "`replicates`, `table_replicates`)")
     return Welch(a.mean - share, float(np.sqrt(a.variance(share) / a.policies)), float(a.policies - 1))
 
 

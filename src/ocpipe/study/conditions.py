@@ -12,6 +12,7 @@ from functools import cache
 
 import yaml
 
+from ..config import replicates
 from ..config.experiments import resolve
 from ..config.validate import REPO_ROOT
 from .registry import EVERY_TABLE_HOLDS, TABLES
@@ -107,5 +108,7 @@ def footer(config: dict, table: str) -> str:
     return (f"Profile {config.get('profile', '?')}. Rows differ only in: {varies}"
             + (f" (and {', '.join(spec.allowed)} in what it needs to run)" if spec.allowed else "")
             + (f"; the study held fixed: {spec.fixed}" if spec.fixed else "") + ". "
+            + (f"Each row: {k} trained policies. " if (k := replicates.of_table(config, table)) > 1 else
+               "Each row: one trained policy. ")
             + ("Departures from the study's recipe, the same for every row unless named: " + "; ".join(dep)
                if dep else "No departure from the study's recipe") + ".")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import polars as pl
 
 from .. import paths
+from ..config import replicates
 from ..config.experiments import resolve
 from ..encoders.registry import tokens_per_camera
 from ..paths import split_policy
@@ -44,7 +45,7 @@ def table_rows(config: dict, table: str, needs=None, runs_dir=paths.RUNS) -> lis
     for label, exp in targets.rows(config, table).items():
         policy = resolve(config, exp)
         tokens = len(policy["cameras"]) * tokens_per_camera(policy["encoder"], config["encoders"])
-        pids = targets.policies(config, exp)
+        pids = targets.policies(config, exp, table)
         row = tables.Row(label, policy, exp=exp, status=skip.get(label), visual_tokens=tokens, policies=len(pids))
         if row.status is None:
             row.data = {need: need.load({split_policy(pid)[1]: need.files(config, pid, runs_dir) for pid in pids})
@@ -62,6 +63,31 @@ def write_table(config: dict, table: str, csv_path, md_path, runs_dir=paths.RUNS
     return write(frame, csv_path, md_path, spec.title, conditions.footer(config, table))
 
 
+def _tests_note(config: dict, scope: str) -> str:
+    """How the findings of ``scope`` are tested, by the number of policies their tables' rows are."""
+    k_of = {t: replicates.of_table(config, t) for t in dict.fromkeys(findings.BY_ID[f].table for f in
+                                                                    findings.SCOPES[scope])}
+    by_k = {k: [t for t in k_of if k_of[t] == k] for k in sorted(set(k_of.values()), reverse=True)}
+    parts = []
+    replicated = [k for k in by_k if k > 1]
+    if replicated:
+        per_row = (f"{replicated[0]} policies per row, each trained with its own seed" if len(by_k) == 1 else
+                   "Policies per row, each trained with its own seed: " + ", ".join(
+                       f"{k} ({', '.join(TABLES[t].title.split(':')[0] for t in by_k[k])})" for k in by_k))
+        parts.append(
+            f"{per_row} (config `replicates`, `table_replicates`); the trained policy is the unit. Order claims: "
+            "Welch's t on the per-policy rates (floored at one policy's binomial noise), lengths and rewards; 'about "
+            f"the same': equivalence (TOST), 'at most': non-inferiority, each within ±{100 * by_policy.MARGIN:.0f} "
+            "points. Resolvable: the smallest true gap (for 'about the same', the narrowest margin) the test finds at "
+            "80 % power with this run's spread and policy counts")
+    if 1 in by_k:
+        parts.append(
+            "One policy per row: its episodes show episode noise only, not how far another training seed would move "
+            "the row, so these p-values are too small (config `replicates`). SR: Fisher's exact test on success "
+            "counts pooled over the stability runs; lengths and rewards: Mann-Whitney U; shares: Fisher or binomial")
+    return ". ".join(parts)
+
+
 def write_findings(config: dict, scope: str, csv_path, md_path, runs_dir=paths.RUNS) -> pl.DataFrame:
     """The findings of ``scope`` (findings.SCOPES), each judged on the episode files its table reads."""
     out = []
@@ -70,20 +96,8 @@ def write_findings(config: dict, scope: str, csv_path, md_path, runs_dir=paths.R
         out.append(findings.judge(finding, findings.by_experiment(table_rows(config, finding.table, finding.needs,
                                                                              runs_dir))))
     frame = pl.DataFrame(out, infer_schema_length=None)
-    k = config["replicates"]
-    if k > 1:
-        tests = (f"{k} policies per row, each trained with its own seed: the trained policy is the unit. Order claims: "
-                 "Welch's t on the per-policy rates (floored at one policy's binomial noise), lengths and rewards; "
-                 f"'about the same': equivalence (TOST), 'at most': non-inferiority, each within ±"
-                 f"{100 * by_policy.MARGIN:.0f} points. Resolvable: the smallest true gap (for 'about the same', the "
-                 "narrowest margin) the test finds at 80 % power with this run's spread and policy counts")
-    else:
-        tests = ("One policy per row: its episodes show episode noise only, not how far another training seed "
-                 "would move the row, so these p-values are too small (config `replicates`). SR: Fisher's exact test "
-                 "on success counts pooled over the stability runs; lengths and rewards: Mann-Whitney U; shares: "
-                 "Fisher or binomial")
-    note = (f"Profile {config.get('profile', '?')}. {tests}. p: the largest p-value of the claims that must resolve "
-            "(with one policy, the order claims); "
+    note = (f"Profile {config.get('profile', '?')}. {_tests_note(config, scope)}. p: the largest p-value of the "
+            "claims that must resolve (with one policy, the order claims); "
             f"reproduced = every claim resolved at p < {pooled.ALPHA}; 'not contradicted' = an 'about the same' or "
             "'at most' claim the test could neither show nor reject.")
     return write(frame, csv_path, md_path, "Findings of the study, judged on this build", note)

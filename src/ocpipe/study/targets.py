@@ -1,23 +1,28 @@
 """The study's tables and figures as targets: what each reads per row, and where those files live.
 
 A table row is an experiment (config `tables`: table -> row label -> experiment), trained as K policies (config
-`replicates`, from `replicate_seed_offset`). Each table reads a fixed set of per-policy inputs (`inputs`); the
+`replicates`, from `replicate_seed_offset`); a table capped by `table_replicates` reads the first of them only, the
+same number for each of its rows. Each table reads a fixed set of per-policy inputs (`inputs`); the
 workflow asks for exactly those files, and rows whose encoder needs weight files the config does not give are
 reported as such instead of being built."""
 
 from __future__ import annotations
 
 from .. import paths
+from ..config import replicates
 from ..config.experiments import features_store, missing_weights, resolve
 from .findings import BY_ID, SCOPES
 from .inputs import Input
 from .registry import TABLES
 
 
-def policies(config: dict, exp: str) -> list[str]:
-    """The ids of the K policies this build trains for experiment ``exp`` (paths.policy_id)."""
+def policies(config: dict, exp: str, table: str | None = None) -> list[str]:
+    """The ids (paths.policy_id) of the policies behind experiment ``exp``: its rows' in ``table``, or, without a
+    table, those of every table it is a row of (the most any of them reads; K where none)."""
+    tables = [table] if table else [t for t, r in config["tables"].items() if exp in r.values()]
+    k = max((replicates.of_table(config, t) for t in tables), default=config["replicates"])
     first = config["replicate_seed_offset"]
-    return [paths.policy_id(exp, k) for k in range(first, first + config["replicates"])]
+    return [paths.policy_id(exp, i) for i in range(first, first + k)]
 
 
 def rows(config: dict, table: str) -> dict[str, str]:
@@ -41,7 +46,7 @@ def inputs(config: dict, table: str, needs: tuple[Input, ...] | None = None) -> 
     skip = unavailable(config, table)
     needs = TABLES[table].needs if needs is None else needs
     return [f for label, exp in rows(config, table).items() if label not in skip
-            for pid in policies(config, exp) for need in needs for f in need.files(config, pid)]
+            for pid in policies(config, exp, table) for need in needs for f in need.files(config, pid)]
 
 
 def experiments_of(config: dict, tables=None) -> list[str]:
