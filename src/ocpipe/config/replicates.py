@@ -1,5 +1,5 @@
 """How many trained policies each row of a table is: K (config `replicates`), or fewer where `table_replicates` caps
-the table, so that tables whose claims need less resolution cost less (the whole study in an afternoon on 2 cores)."""
+the table, so that tables whose claims need less resolution train fewer policies."""
 
 from __future__ import annotations
 

@@ -15,9 +15,9 @@ Snakemake starts the ready jobs whose priorities sum highest among those that fi
 scheduler), so two one-thread jobs outrank one two-thread job of the same priority, and a two-thread job can wait
 for as long as one-thread jobs keep coming: in a run of the main job the dual-camera features job, which gates all
 15 visual policies, waited 17 minutes (16:35:45-16:52:54) behind the control's policies and the read-out scenes.
-A job of t > 1 threads therefore also gets more than t times the highest priority of a one-thread job: whenever it
-fits, it starts before any t one-thread jobs. (It can still wait while a one-thread job holds a core: Snakemake keeps no core
-free for it.)"""
+A job of t > 1 threads therefore also gets more than t times the highest priority of a one-thread job: whenever its
+cores are free together, it starts before any t one-thread jobs. It can still wait while a one-thread job holds a
+core (Snakemake keeps no core free for it), so the default profile gives feature extraction one thread."""
 
 from __future__ import annotations
 
