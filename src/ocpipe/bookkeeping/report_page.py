@@ -39,14 +39,9 @@ FIGURE_TITLES = {
 }
 
 
-def table_number(table: str) -> str:
-    """'5.1' of table5_1: the number its registry title gives."""
-    return registry.TABLES[table].title.split(":")[0].removeprefix("Table ")
-
-
 def group(scope: str) -> str:
     """The report's subcategory of a group target's tables, figures and findings: 'Main job: Tables 5.1-5.2'."""
-    numbers = [table_number(t) for t in registry.tables_in(scope)]
+    numbers = [registry.table_number(t) for t in registry.tables_in(scope)]
     return f"{SCOPE_NAMES[scope]}: Tables {numbers[0]}-{numbers[-1]}"
 
 
@@ -83,7 +78,7 @@ def figure_group(figure: str) -> str:
 
 def figure_label(figure: str) -> dict[str, str]:
     number = figure.removeprefix("fig").replace("_", ".")
-    return {"figure": f"{number}: {FIGURE_TITLES[figure]} (Table {table_number(figure_table(figure))}'s rows)"}
+    return {"figure": f"{number}: {FIGURE_TITLES[figure]} (Table {registry.table_number(figure_table(figure))}'s rows)"}
 
 
 def read_markdown(path) -> list[tuple[str, object]]:

@@ -22,11 +22,6 @@ PARTS = ("videos", "sheets", "episodes.csv")  # what one row's gallery job write
 GALLERY_STREAM = 11  # random stream (root seed, purpose, ...): see evaluation.jobs for the others
 
 
-def table_number(table: str) -> str:
-    """``table5_10`` -> ``5.10``."""
-    return table.removeprefix("table").replace("_", ".")
-
-
 def rows(config: dict, scopes: tuple[str, ...] = SCOPES) -> dict[str, dict[str, str]]:
     """Experiment -> {table: row label} over the tables of ``scopes`` (of SCOPES), in table order; rows that cannot
     run with this config (an encoder without its weights) are left out, as the tables leave them."""
@@ -63,7 +58,7 @@ def built(exps, workdir: Path | str = ".") -> list[str]:
 def row_title(tables: dict[str, str]) -> str:
     """How a row is named in the report: ``Tables 5.1, 5.2: 2D-Spatial-Proj`` (its labels joined where tables
     name it differently)."""
-    numbers = ", ".join(table_number(t) for t in tables)
+    numbers = ", ".join(registry.table_number(t) for t in tables)
     labels = " / ".join(dict.fromkeys(tables.values()))
     return f"Table{'s' if len(tables) > 1 else ''} {numbers}: {labels}"
 

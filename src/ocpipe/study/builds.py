@@ -12,7 +12,7 @@ from ..config.errors import ConfigError
 from ..config.seed_pools import policies_drawn, pool_problems
 from ..stats import by_policy
 from ..util.atomic import atomic_path
-from . import findings, report, tables, targets
+from . import findings, registry, report, tables, targets
 from .inputs import STABILITY
 from .registry import TABLES
 
@@ -83,7 +83,7 @@ def compare_rows(config: dict, scope: str, runs_dir=paths.RUNS) -> pl.DataFrame:
             x, y = sa[label], sb[label]
             if x["policies"] < 2:
                 raise ValueError("comparing builds needs an interval over policies: config `replicates` >= 2")
-            out.append({"Table": table.replace("table", "").replace("_", "."), "Method": label,
+            out.append({"Table": registry.table_number(table), "Method": label,
                         f"SR mean, {_label(a)}": x["sr_mean"], "95 % low A": x["sr_low"], "95 % high A": x["sr_high"],
                         f"SR mean, {_label(b)}": y["sr_mean"], "95 % low B": y["sr_low"], "95 % high B": y["sr_high"],
                         "A within B's interval": "yes" if y["sr_low"] <= x["sr_mean"] <= y["sr_high"] else "no",

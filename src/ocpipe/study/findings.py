@@ -252,7 +252,7 @@ def not_run(finding: Finding, rows: dict[str, Row]) -> str | None:
 
 def judge(finding: Finding, rows: dict[str, Row]) -> dict:
     """One line of the findings table; ``rows`` by experiment."""
-    base = {"Finding": finding.id, "Table": finding.table.replace("table", "").replace("_", "."),
+    base = {"Finding": finding.id, "Table": registry.table_number(finding.table),
             "Claim": finding.claim, "Study": finding.study}
     reason = not_run(finding, rows)
     if reason:

@@ -114,6 +114,11 @@ if _unknown:  # a misspelt scope would leave the table out of every group target
     raise ValueError(f"tables with a scope not in {SCOPES}: {_unknown}")
 
 
+def table_number(table: str) -> str:
+    """'5.10' of table5_10: the number its title gives."""
+    return TABLES[table].title.split(":")[0].removeprefix("Table ")
+
+
 def tables_in(scope: str) -> list[str]:
     """The tables a group target builds, in registry order."""
     if scope not in SCOPES:

@@ -11,7 +11,7 @@ from ..encoders.registry import tokens_per_camera
 from ..paths import split_policy
 from ..stats import by_policy, pooled
 from ..util.atomic import atomic_path
-from . import conditions, figures, findings, tables, targets
+from . import conditions, figures, findings, registry, tables, targets
 from .inputs import FAILURES, STABILITY, SWEEP, TRAIN_LOG
 from .registry import FIGURES, SPATIAL_FIGURES_NEEDS, SPATIAL_FIGURES_TABLE, TABLES
 
@@ -65,15 +65,16 @@ def write_table(config: dict, table: str, csv_path, md_path, runs_dir=paths.RUNS
 
 def _tests_note(config: dict, scope: str) -> str:
     """How the findings of ``scope`` are tested, by the number of policies their tables' rows are."""
-    k_of = {t: replicates.of_table(config, t) for t in dict.fromkeys(findings.BY_ID[f].table for f in
-                                                                    findings.SCOPES[scope])}
-    by_k = {k: [t for t in k_of if k_of[t] == k] for k in sorted(set(k_of.values()), reverse=True)}
+    by_k: dict[int, list[str]] = {}
+    for table in dict.fromkeys(findings.BY_ID[f].table for f in findings.SCOPES[scope]):
+        by_k.setdefault(replicates.of_table(config, table), []).append(table)
+    by_k = dict(sorted(by_k.items(), reverse=True))
     parts = []
     replicated = [k for k in by_k if k > 1]
     if replicated:
         per_row = (f"{replicated[0]} policies per row, each trained with its own seed" if len(by_k) == 1 else
                    "Policies per row, each trained with its own seed: " + ", ".join(
-                       f"{k} ({', '.join(TABLES[t].title.split(':')[0] for t in by_k[k])})" for k in by_k))
+                       f"{k} ({', '.join(f'Table {registry.table_number(t)}' for t in ts)})" for k, ts in by_k.items()))
         parts.append(
             f"{per_row} (config `replicates`, `table_replicates`); the trained policy is the unit. Order claims: "
             "Welch's t on the per-policy rates (floored at one policy's binomial noise), lengths and rewards; 'about "
