@@ -180,6 +180,29 @@ def test_table5_1_from_known_rows():
     assert row["Runs"] == 3 and row["Trivial excluded"] == 1
 
 
+def test_a_table_refuses_a_policys_episodes_of_two_checkpoints():
+    """A stability run is the best checkpoint's alone; episodes of two checkpoints (a stability rule that ran the
+    sweep's) are named, not pooled into a row."""
+    two = pl.concat([episodes(0, [True, False], [40, 100]),
+                     episodes(0, [False, False], [100, 100]).with_columns(checkpoint=pl.lit(5, pl.Int64))])
+    with pytest.raises(ValueError, match=r"e: its episodes hold checkpoints \[5, 10\]"):
+        tables.stability_summary(two)
+
+
+@pytest.mark.parametrize("kind,epochs,best,problem", [
+    ("stability", [8, 16], "best.json", "a stability job of goal2d runs its best checkpoint alone"),
+    ("failure_run", None, None, "a failure_run job of goal2d runs its best checkpoint alone"),
+    ("sweep", None, None, "a sweep job of goal2d needs the checkpoints it runs"),
+])
+def test_only_a_sweep_or_a_lever_runs_the_checkpoints_it_is_given(tmp_path, kind, epochs, best, problem):
+    """Each evaluation kind runs what it is for (a sweep every checkpoint, a stability run the best one): a job
+    given the other is refused before anything is built."""
+    with pytest.raises(ValueError, match=problem):
+        jobs.run_job(kind, "goal2d", {}, tmp_path, tmp_path, None, tmp_path / "e.parquet", tmp_path / "s.parquet",
+                     0, best_json=best and tmp_path / best, epochs=epochs, progress=False)
+    assert not list(tmp_path.iterdir())
+
+
 def test_table5_2_counts_and_percentages(tmp_path):
     classes = pl.DataFrame(
         {"class": ["Success", "Drop", "Drop", "No Grasp", "Success"], "trivial": [False, False, False, False, True]}

@@ -102,6 +102,9 @@ use rule sweep as stability with:
     params:
         **EVAL_PARAMS,
         kind="stability",
+        # `use rule ... with` keeps every keyword param it does not name: without this, a stability run would
+        # evaluate each checkpoint the sweep does, not the best one alone
+        epochs=None,
 
 
 use rule stability as failure_run with:

@@ -18,6 +18,7 @@ from . import closed_loop
 # random streams: (root seed, purpose)
 TEST_POOL, VALIDATION_POOL, TRAIN_SEEDS = 1, 4, 3
 TEST_KINDS = ("sweep", "stability", "failure_run", "training_time")  # each draws its own block of the test pool
+NAMED_CHECKPOINTS = ("sweep", "validation")  # the kinds that run the checkpoints they are given; the rest the best
 
 
 def seeds_for(kind: str, evaluation_cfg: dict, seed: int, run: int = 0,
@@ -66,9 +67,16 @@ def run_job(kind: str, exp: str, config: dict, checkpoints_dir, frames, encoder_
     """``exp``: the policy's id (paths.policy_id: its replicate picks its block of test episodes). ``policy``: the
     experiment's resolved settings; a checkpoint trained with another task, camera set, resolution or encoder is
     refused before the simulator starts. ``epochs``: the checkpoints to run, one after another on the same seeds in
-    one process (a sweep; each row names its checkpoint), else ``best_json``'s. ``kind`` 'validation' (a lever)
-    runs ``validation_episodes`` episodes of the validation pool."""
-    if epochs is None:
+    one process (a sweep, or a lever's; each row names its checkpoint); every other kind runs ``best_json``'s alone,
+    and is refused a list. ``kind`` 'validation' (a lever) runs ``validation_episodes`` episodes of the validation
+    pool."""
+    if kind in NAMED_CHECKPOINTS:
+        if not epochs:
+            raise ValueError(f"a {kind} job of {exp} needs the checkpoints it runs (epochs), got {epochs!r}")
+    elif epochs is not None or best_json is None:
+        raise ValueError(f"a {kind} job of {exp} runs its best checkpoint alone: it takes best_json "
+                         f"({best_json}), not a list of checkpoints (epochs {epochs})")
+    else:
         epochs = [json.loads(Path(best_json).read_text())["epoch"]]
     ckpts = [Path(checkpoints_dir) / f"epoch_{e:04d}.pt" for e in epochs]
     for epoch, ckpt in zip(epochs, ckpts, strict=True):

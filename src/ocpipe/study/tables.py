@@ -22,6 +22,12 @@ def _std(values: list[float]) -> float:
 
 def _runs_summary(episodes: pl.DataFrame) -> dict:
     """One policy's SR and mean episode length per run, as mean and std over its runs."""
+    if "checkpoint" in episodes.columns and episodes["checkpoint"].n_unique() > 1:
+        exp = episodes["exp"][0] if "exp" in episodes.columns else "a policy"
+        raise ValueError(f"{exp}: its episodes hold checkpoints "
+                         f"{sorted(episodes['checkpoint'].unique().to_list())}, where a table reads the policy's "
+                         "best one alone (results from before the fix of the stability rule: rerun them with "
+                         "snakemake --forcerun stability)")
     srs, lengths, sizes = [], [], []
     for _, run in episodes.group_by("run", maintain_order=True):
         kept = run.filter(~pl.col("trivial"))
