@@ -204,10 +204,11 @@ def _single_step(policy, K, D, kernel, batch):
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=policy["lr"])
     forward = torch.compile(model) if kernel == "compile" else model
+    every_step = policy["action_loss"] == "every_step"  # the whole decoder, every step's actions
 
     def step():
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=kernel == "bf16"):
-            loss = forward(*batch).actions.float().square().mean()
+            loss = forward(*batch, every_step=every_step).actions.float().square().mean()
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(params, 1.0)
@@ -284,11 +285,13 @@ def per_policy(config, specs: list[str], threads: int) -> None:
         if missing:
             sys.exit(f"{', '.join(missing)} missing: build the default stores first (make main)")
         d = data.load(p, stores["features"], stores["frames"], config["camera_approx"])
-        batches = len(d.windows(PolicySettings.of(p), d.train_frames, p["batch_size"], 0))
+        loader = d.windows(PolicySettings.of(p), d.train_frames, p["batch_size"], 0,
+                           every_step=p["action_loss"] == "every_step")
         got = _in_child(_train_worker, p, stores, threads, config["camera_approx"])
-        floor = _in_child(_floor_worker, p, got["epochs"] * batches, threads, d.meta["K"], d.meta["D"], "eager")
+        steps = sum(loader.batches(epoch) for epoch in range(got["epochs"]))
+        floor = _in_child(_floor_worker, p, steps, threads, d.meta["K"], d.meta["D"], "eager")
         first = first or got["cpu"]
-        print(f"{spec:<58}{got['epochs']:>7}{got['epochs'] * batches:>8}{got['cpu']:>9.0f}"
+        print(f"{spec:<58}{got['epochs']:>7}{steps:>8}{got['cpu']:>9.0f}"
               f"{got['cpu'] / first:>9.2f}{floor:>9.0f}{got['cpu'] / floor:>9.2f}")
     print()
 

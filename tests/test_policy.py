@@ -355,6 +355,77 @@ def test_loader_yields_each_window_once_per_epoch_one_chunk_at_a_time():
     assert sum((b["tokens"][:, -1, 0, 0, 0].long().tolist() for b in again.epoch(0)), []) == orders[0]
 
 
+def test_every_step_windows_supervise_each_frame_once_an_epoch_from_about_a_tth_of_the_windows():
+    N, chunk, T, H = 95, 32, 3, 4
+    tokens = np.arange(N, dtype=np.float32)[:, None, None, None] * np.ones((1, 2, 7, 4), np.float32)
+    action = np.zeros((N, 8), np.float32)
+    action[:, 0] = np.arange(N)  # each frame's action names its frame
+    offsets = [0, 30, 55, 95]
+    labels = Labels.from_offsets(offsets, np.zeros((N, 7), np.float32), np.zeros((N, 0), np.float32), action,
+                                 qpos=np.arange(N, dtype=np.float32)[:, None] * np.ones((1, 9), np.float32))
+    loader = ChunkWindowLoader(ReadRecorder(tokens, chunk), labels, T, H, batch_size=4, cameras=[0, 1], seed=0,
+                               every_step=True)
+    current_frames = []
+    for epoch in range(4):
+        supervised, windows, batches = [], 0, 0
+        for batch in loader.epoch(epoch):
+            win = batch["tokens"][:, :, 0, 0, 0].long().numpy()
+            assert batch["action"].shape == (len(win), T, H, 8) and batch["qpos"].shape == (len(win), T, 9)
+            # every step's targets are its own frame's next H actions, relative to its own joints
+            want = action_frames(win.reshape(-1), labels, H).reshape(len(win), T, H)
+            np.testing.assert_array_equal(batch["action"][..., 0].numpy(), want)  # exact: frame ids
+            np.testing.assert_array_equal(batch["qpos"][..., 0].numpy(), win)  # exact: frame ids
+            supervised += win[batch["step_mask"].numpy()].tolist()
+            windows += len(win)
+            batches += 1
+            current_frames.append(tuple(sorted(win[:, -1])))
+        assert sorted(supervised) == list(range(N))  # each frame once, none twice
+        assert batches == loader.batches(epoch)
+        # ceil(L / T) to ceil((L + T - 1) / T) windows an episode of L frames, against N for last_step
+        lengths = np.diff(offsets)
+        assert sum(-(-n // T) for n in lengths) <= windows <= sum(-(-(n + T - 1) // T) for n in lengths)
+    assert len(set(current_frames)) > 1  # the grid's phase moves between epochs
+
+
+@pytest.mark.parametrize("window", [1, 5])
+def test_every_step_actions_end_with_the_current_steps(window):
+    policy = policy_settings(window=window, goal="2d", dropout=0.0)
+    torch.manual_seed(0)
+    model = SequencePolicy(policy, 7, 16).eval().double()
+    x = inputs(policy, dtype=torch.float64)
+    every = model(*x, every_step=True).actions
+    assert every.shape == (3, window, policy["horizon"], 8)
+    states = model.action_states(model.tokens(*x)[0])  # every step's action token, through the whole decoder
+    last = model.action_head(states[:, -1])
+    # the largest term of any of the head's sums: each Linear's largest weight times its largest input
+    h, term = states.detach(), 0.0
+    for layer in model.action_head.net:
+        if isinstance(layer, torch.nn.Linear):
+            term = max(term, float(layer.weight.detach().abs().max() * h.abs().max()))
+        h = layer(h)
+    W = policy["width"]
+    # derived: float64, the same row-wise MLP on 3 rows or on 3 * T: at most its 3 sums of W terms reordered
+    torch.testing.assert_close(every[:, -1], last, rtol=0, atol=reduction_atol(W, term, depth=3))
+    # and that last state is the one the closed loop reads (test_the_current_action_state_is_the_full_...)
+    assert not torch.allclose(every[:, 0], last, rtol=0, atol=1e-3) or window == 1  # derived: O(1) apart
+
+
+def test_an_every_step_policy_trains_through_its_schedule_and_resumes_identically(tmp_path):
+    features, frames = write_stores(tmp_path)
+    policy = policy_settings(action_loss="every_step", lr_schedule="cosine", batch_size=4)
+    full = train(policy, 0, features, frames, tmp_path / "full", progress=False)
+    lrs = full["lr"].to_list()  # epochs of different lengths, one schedule: the warm-up's peak, then down to ~0
+    assert lrs[0] == policy["lr"] and lrs == sorted(lrs, reverse=True) and lrs[-1] < policy["lr"] / 10
+    assert full["loss"][-1] < full["loss"][0]
+    with pytest.raises(RuntimeError):
+        train(policy, 0, features, frames, tmp_path / "resumed", progress=False,
+              on_epoch_end=lambda e: (_ for _ in ()).throw(RuntimeError("killed")) if e == 2 else None)
+    resumed = train(policy, 0, features, frames, tmp_path / "resumed", progress=False)
+    assert resumed.drop("seconds").equals(full.drop("seconds"))  # one-cpu: two trainings' losses
+    _, settings, _ = load_policy(tmp_path / "full" / "checkpoints" / "epoch_0004.pt")
+    assert settings.training.action_loss == "every_step"
+
+
 def test_training_writes_checkpoints_and_log_and_a_killed_run_resumes_identically(tmp_path):
     features, frames = write_stores(tmp_path)
     # cosine: a resumed run must rejoin the schedule where the killed one left it, with no scheduler state saved

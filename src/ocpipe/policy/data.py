@@ -22,10 +22,12 @@ class TrainingData:
     val_frames: np.ndarray  # frame ids of the held-out episodes
     meta: dict  # what the checkpoint records about its inputs
 
-    def windows(self, policy: PolicySettings, frames: np.ndarray, batch_size: int, seed: int) -> ChunkWindowLoader:
-        """Batches of the policy's T-step windows ending at ``frames``, one features chunk in RAM at a time."""
+    def windows(self, policy: PolicySettings, frames: np.ndarray, batch_size: int, seed: int,
+                every_step: bool = False) -> ChunkWindowLoader:
+        """Batches of the policy's T-step windows ending at ``frames``, one features chunk in RAM at a time;
+        ``every_step``: windows that supervise each of their steps (ChunkWindowLoader)."""
         return ChunkWindowLoader(self.tokens, self.labels, policy.network.window, policy.network.horizon, batch_size,
-                                 policy.stores.cameras, seed, frames=frames)
+                                 policy.stores.cameras, seed, frames=frames, every_step=every_step)
 
     def normalizer_inputs(self, policy: PolicySettings) -> dict:
         """The training frames' raw inputs and targets that the policy's Normalizer is fitted on."""

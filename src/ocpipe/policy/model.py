@@ -203,14 +203,22 @@ class SequencePolicy(nn.Module):
         x = x + last.dropout2(last.linear2(last.dropout(last.activation(last.linear1(last.norm2(x))))))
         return self.norm(x[:, 0])
 
-    def forward(self, tokens, proprio, goal, readout_seen=None) -> PolicyOutput:
+    def forward(self, tokens, proprio, goal, readout_seen=None, every_step: bool = False) -> PolicyOutput:
         """(B, T, C, K, D), (B, T, P), (B, T, G) -> PolicyOutput: the current step's (B, H, 8) actions, the object
         read-out of every step (B, T, 5) and the auxiliary head's object position (B, 3), each None when the
-        policy has no such head. ``readout_seen``: see tokens."""
+        policy has no such head. ``readout_seen``: see tokens. ``every_step`` (training with action loss
+        `every_step`): the actions of every step's action token, (B, T, H, 8), each seeing only the steps up to
+        its own; the auxiliary head still reads the current step's."""
         seq, readout = self.tokens(tokens, proprio, goal, readout_seen)
-        act = self.current_action_state(seq)  # (B, W)
+        if every_step:
+            states = self.action_states(seq)  # (B, T, W)
+            act = states[:, -1]
+            actions = self.action_head(states.flatten(0, 1)).unflatten(0, states.shape[:2])
+        else:
+            act = self.current_action_state(seq)  # (B, W)
+            actions = self.action_head(act)
         obj = self.aux_head(act) if self.aux_head is not None else None
-        return PolicyOutput(self.action_head(act), readout, obj)
+        return PolicyOutput(actions, readout, obj)
 
 
 def causal_mask(seq: torch.Tensor) -> torch.Tensor:

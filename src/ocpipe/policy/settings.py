@@ -152,6 +152,12 @@ class Training:
                                "the learning rate over training: constant, or cosine: a linear warm-up over the "
                                "first epoch, then a cosine decay towards 0 at the end of training (study: constant)",
                                "constant")
+    action_loss: str = setting("action_loss", enum("last_step", "every_step"),
+                               "last_step: a window of T steps supervises its last step's H actions; every_step: "
+                               "each step's action token, seeing only the steps up to its own, is supervised with "
+                               "its step's H actions, and an epoch trains on the windows ending every T frames, so "
+                               "each frame is still supervised once an epoch, from about 1/T of the windows "
+                               "(study: last_step)", "last_step")
 
 
 GROUPS = {"stores": Stores, "goal": Goal, "visual": Visual, "readout": Readout, "network": Network,

@@ -143,14 +143,18 @@ def train_epoch(run: Run, epoch: int, progress: bool) -> dict:
     policy, model, d = run.policy, run.model, run.data
     torch.manual_seed(_epoch_seed(run.seed, epoch))
     model.train()
-    loader = d.windows(policy, d.train_frames, policy.training.batch_size, run.seed)
+    loader = d.windows(policy, d.train_frames, policy.training.batch_size, run.seed,
+                       every_step=policy.training.action_loss == "every_step")
     readout_w = readout.readout_weights(policy.readout.yaw_weight, run.device)
     t0 = time.perf_counter()
     sums, n = dict.fromkeys(LOSSES, 0.0), 0
-    bar = tqdm(loader.epoch(epoch), total=len(loader), disable=not progress, unit="batch",
+    # every_step epochs differ in length by a few batches; the schedule reads this epoch's as every epoch's, so it
+    # still runs from the warm-up through the cosine to 0 at the last batch
+    batches = loader.batches(epoch)
+    bar = tqdm(loader.epoch(epoch), total=batches, disable=not progress, unit="batch",
                desc=f"{policy.name or 'policy'} epoch {epoch + 1}/{policy.training.epochs}")
     for step, batch in enumerate(bar):
-        lr = learning_rate(policy.training, epoch * len(loader) + step, len(loader))
+        lr = learning_rate(policy.training, epoch * batches + step, batches)
         for group in run.opt.param_groups:
             group["lr"] = lr
         batch = {k: v.to(run.device) for k, v in batch.items()}
@@ -174,12 +178,18 @@ def train_epoch(run: Run, epoch: int, progress: bool) -> dict:
 def batch_loss(model, policy: PolicySettings, batch: dict, epoch: int, readout_w: torch.Tensor) -> dict:
     """The loss terms of one batch: the weighted action loss, plus the auxiliary head's and the read-out's (each
     0 without that head)."""
-    out = model(batch["tokens"], batch["proprio"], batch["goal"])
+    every_step = "step_mask" in batch
+    out = model(batch["tokens"], batch["proprio"], batch["goal"], every_step=every_step)
     norm = model.normalizer
     tr = policy.training
     w = loss_weights(tr.loss_weighting, batch["progress"], epoch, tr.time_weight_warmup_epochs)
-    terms = loss_terms(out.actions, norm.actions_to_model(batch["action"], batch.get("qpos")), w,
-                       policy.network.gripper == "bce")
+    pred, action, qpos = out.actions, batch["action"], batch.get("qpos")
+    if every_step:  # (B, T, H, 8) -> (B * T, H, 8); the loss is the mean over the steps the mask keeps
+        mask = batch["step_mask"].flatten().to(w.dtype)
+        w = w.flatten(0, 1) * (mask * len(mask) / mask.sum())[:, None, None]
+        pred, action = pred.flatten(0, 1), action.flatten(0, 1)
+        qpos = None if qpos is None else qpos.flatten(0, 1)
+    terms = loss_terms(pred, norm.actions_to_model(action, qpos), w, policy.network.gripper == "bce")
     terms["loss_aux"] = torch.zeros(())
     if out.object_pos is not None:
         terms["loss_aux"] = ((out.object_pos - norm.aux(batch["aux"])) ** 2).mean()

@@ -58,21 +58,32 @@ def progress(target_frames: np.ndarray, frames: np.ndarray, labels: Labels) -> n
 
 
 def make_batch(
-    tokens: np.ndarray, base: int, frames: np.ndarray, labels: Labels, T: int, H: int, cameras: list[int]
+    tokens: np.ndarray, base: int, frames: np.ndarray, labels: Labels, T: int, H: int, cameras: list[int],
+    covered_from: np.ndarray | None = None,
 ) -> dict[str, torch.Tensor]:
-    """Assemble samples for ``frames``; ``tokens`` holds store frames base .. base+len(tokens)."""
+    """Assemble samples for ``frames``; ``tokens`` holds store frames base .. base+len(tokens).
+
+    With ``covered_from`` (n,) the batch supervises every step of each window (action loss `every_step`): the
+    targets, their progress and the joints they are relative to come per step, (n, T, ...), and ``step_mask``
+    (n, T) keeps a step only if it is its frame's first place in the window (not a repeat of the episode's first
+    frame) and at or after ``covered_from``, so each frame of an epoch's windows is supervised once."""
     win = window_frames(frames, labels, T)
-    act = action_frames(frames, labels, H)
+    target_frames = frames if covered_from is None else win
+    act = action_frames(target_frames.reshape(-1), labels, H).reshape(*target_frames.shape, H)
     batch = {
         "tokens": torch.from_numpy(np.ascontiguousarray(tokens[win - base][:, :, cameras], dtype=np.float32)),
         "proprio": torch.from_numpy(labels.proprio[win]),
         "goal": torch.from_numpy(labels.goal[win]),
         "action": torch.from_numpy(labels.action[act]),
-        "progress": torch.from_numpy(progress(act, frames, labels)),
+        "progress": torch.from_numpy(progress(act.reshape(len(act), -1), frames, labels).reshape(act.shape)),
         "frame": torch.from_numpy(frames),
     }
+    if covered_from is not None:
+        first_place = np.ones_like(win, dtype=bool)
+        first_place[:, 1:] = win[:, 1:] != win[:, :-1]
+        batch["step_mask"] = torch.from_numpy(first_place & (win >= covered_from[:, None]))
     if labels.qpos is not None:
-        batch["qpos"] = torch.from_numpy(labels.qpos[frames])
+        batch["qpos"] = torch.from_numpy(labels.qpos[target_frames])
     if labels.aux is not None:
         batch["aux"] = torch.from_numpy(labels.aux[frames])
     if labels.readout is not None:
@@ -84,7 +95,12 @@ class ChunkWindowLoader:
     """Epoch iterator over windows, one feature-store chunk in RAM at a time.
 
     ``tokens`` is a Zarr array (or anything sliceable) of shape (N, C, K, D); ``frames`` the current-frame ids
-    to train on (default: all). Batches do not straddle chunks, so a chunk's last batch may be smaller."""
+    to train on (default: all). Batches do not straddle chunks, so a chunk's last batch may be smaller.
+
+    ``every_step``: each window supervises all its steps (make_batch's ``covered_from``), so an epoch needs only
+    the windows ending every T frames of an episode, and at its last frame: about 1/T of them. The grid's phase is
+    drawn per epoch, so a frame is not always at the same place in its window; it is drawn apart from the shuffling,
+    so an epoch's batch count is known before it runs (the learning-rate schedule counts them)."""
 
     def __init__(
         self,
@@ -97,9 +113,11 @@ class ChunkWindowLoader:
         seed: int,
         frames: np.ndarray | None = None,
         chunk_frames: int | None = None,
+        every_step: bool = False,
     ):
         self.tokens, self.labels, self.T, self.H = tokens, labels, T, H
         self.batch_size, self.cameras, self.seed = batch_size, list(cameras), seed
+        self.every_step = every_step
         n = tokens.shape[0]
         self.frames = np.arange(n) if frames is None else np.sort(np.asarray(frames))
         self.chunk_frames = chunk_frames or getattr(tokens, "chunks", (n,))[0]
@@ -109,16 +127,33 @@ class ChunkWindowLoader:
         self.max_chunks_in_ram = 0
 
     def __len__(self) -> int:
-        return sum(-(-len(self._frames_in(lo, hi)) // self.batch_size) for lo, hi in self.chunks)
+        return self.batches(0)
 
-    def _frames_in(self, lo: int, hi: int) -> np.ndarray:
-        return self.frames[np.searchsorted(self.frames, lo) : np.searchsorted(self.frames, hi)]
+    def batches(self, epoch: int) -> int:
+        """The number of batches epoch ``epoch`` (0-based) yields."""
+        frames, _ = self._epoch_frames(epoch)
+        return sum(-(-int(np.sum((frames >= lo) & (frames < hi))) // self.batch_size) for lo, hi in self.chunks)
+
+    def _epoch_frames(self, epoch: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """-> (the current frames of the epoch's windows, sorted; with every_step, the first frame each window
+        supervises: one past the episode's previous window, or the episode's start)."""
+        if not self.every_step:
+            return self.frames, None
+        phase = int(np.random.default_rng([self.seed, epoch, self.T]).integers(self.T))
+        f, start, end = self.frames, self.labels.start[self.frames], self.labels.end[self.frames]
+        chosen = f[((f - start + phase) % self.T == self.T - 1) | (f == end - 1)]
+        first = self.labels.start[chosen].copy()
+        same_episode = first[1:] == first[:-1]
+        first[1:][same_episode] = chosen[:-1][same_episode] + 1
+        return chosen, first
 
     def epoch(self, epoch: int):
         rng = np.random.default_rng([self.seed, epoch])
+        epoch_frames, covered_from = self._epoch_frames(epoch)
         for c in rng.permutation(len(self.chunks)):
             lo, hi = self.chunks[c]
-            frames = self._frames_in(lo, hi)
+            inside = slice(np.searchsorted(epoch_frames, lo), np.searchsorted(epoch_frames, hi))
+            frames = epoch_frames[inside]
             if not len(frames):
                 continue
             base = max(0, lo - (self.T - 1))
@@ -126,11 +161,11 @@ class ChunkWindowLoader:
             self.chunks_in_ram += 1
             self.max_chunks_in_ram = max(self.max_chunks_in_ram, self.chunks_in_ram)
             try:
-                order = rng.permutation(frames)
+                order = rng.permutation(len(frames))
                 for b in range(0, len(order), self.batch_size):
-                    yield make_batch(
-                        block, base, order[b : b + self.batch_size], self.labels, self.T, self.H, self.cameras
-                    )
+                    pick = order[b : b + self.batch_size]
+                    yield make_batch(block, base, frames[pick], self.labels, self.T, self.H, self.cameras,
+                                     None if covered_from is None else covered_from[inside][pick])
             finally:
                 del block
                 self.chunks_in_ram -= 1
