@@ -85,26 +85,24 @@ def measure_loader(kind, policy, features, frames, max_batches, camera_approx):
 
 
 def seconds_per_epoch(policy, features, frames, max_batches, threads, camera_approx):
-    from ocpipe.policy.model import SequencePolicy, loss_terms
-    from ocpipe.policy.weighting import loss_weights
+    from ocpipe.policy import readout
+    from ocpipe.policy.model import SequencePolicy
+    from ocpipe.policy.settings import PolicySettings
+    from ocpipe.policy.training import batch_loss
 
     torch.set_num_threads(threads)
+    settings = PolicySettings.of(policy)
     d = data.load(policy, features, frames, camera_approx)
     tokens, labels, meta = d.tokens, d.labels, d.meta
-    loader = ChunkWindowLoader(
-        tokens, labels, policy["window"], policy["horizon"], policy["batch_size"], policy["cameras"], seed=0
-    )
+    loader = ChunkWindowLoader(tokens, labels, policy["window"], policy["horizon"], policy["batch_size"],
+                               policy["cameras"], seed=0, every_step=policy["action_loss"] == "every_step")
     torch.manual_seed(0)
     model = SequencePolicy(policy, meta["K"], meta["D"])
     opt = torch.optim.AdamW(model.parameters(), lr=policy["lr"])
+    readout_w = readout.readout_weights(settings.readout.yaw_weight, "cpu")
     n, t0 = 0, time.perf_counter()
     for _, batch in enumerate(loader.epoch(0)):
-        loss = loss_terms(
-            model(batch["tokens"], batch["proprio"], batch["goal"]).actions,
-            model.normalizer.actions_to_model(batch["action"], batch["qpos"]),
-            loss_weights("uniform", batch["progress"]),
-            False,
-        )["loss"]
+        loss = batch_loss(model, settings, batch, 0, readout_w)["loss"]  # the training loop's loss, every term
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -236,8 +234,10 @@ def _stacked_step(policy, K, D, kernel, batch):
     skeleton = copy.deepcopy(models[0]).to("meta")
     opt = torch.optim.AdamW(list(params.values()), lr=policy["lr"])
 
+    every_step = {"every_step": policy["action_loss"] == "every_step"}
+
     def loss_of(p, b, *x):
-        return functional_call(skeleton, (p, b), x, strict=False).actions.square().mean()
+        return functional_call(skeleton, (p, b), x, every_step, strict=False).actions.square().mean()
 
     losses = vmap(loss_of, randomness="different")
 
@@ -271,7 +271,8 @@ def per_policy(config, specs: list[str], threads: int) -> None:
     from ocpipe import paths
     from ocpipe.policy.settings import PolicySettings
 
-    print(f"{'recipe':<58}{'epochs':>7}{'steps':>8}{'CPU s':>9}{'x first':>9}{'floor s':>9}{'x floor':>9}"
+    width = max(58, *(len(spec) + 2 for spec in specs))
+    print(f"{'recipe':<{width}}{'epochs':>7}{'steps':>8}{'CPU s':>9}{'x first':>9}{'floor s':>9}{'x floor':>9}"
           f"  ({threads} thread{'s' * (threads > 1)})")
     first = None
     for spec in specs:
@@ -291,7 +292,7 @@ def per_policy(config, specs: list[str], threads: int) -> None:
         steps = sum(loader.batches(epoch) for epoch in range(got["epochs"]))
         floor = _in_child(_floor_worker, p, steps, threads, d.meta["K"], d.meta["D"], "eager")
         first = first or got["cpu"]
-        print(f"{spec:<58}{got['epochs']:>7}{steps:>8}{got['cpu']:>9.0f}"
+        print(f"{spec:<{width}}{got['epochs']:>7}{steps:>8}{got['cpu']:>9.0f}"
               f"{got['cpu'] / first:>9.2f}{floor:>9.0f}{got['cpu'] / floor:>9.2f}")
     print()
 
