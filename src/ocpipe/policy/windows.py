@@ -132,7 +132,12 @@ class ChunkWindowLoader:
     def batches(self, epoch: int) -> int:
         """The number of batches epoch ``epoch`` (0-based) yields."""
         frames, _ = self._epoch_frames(epoch)
-        return sum(-(-int(np.sum((frames >= lo) & (frames < hi))) // self.batch_size) for lo, hi in self.chunks)
+        return sum(-(-(inside.stop - inside.start) // self.batch_size) for _, inside in self._in_chunks(frames))
+
+    def _in_chunks(self, frames: np.ndarray) -> list[tuple[tuple[int, int], slice]]:
+        """Each chunk's bounds and the slice of the sorted ``frames`` that falls in it."""
+        return [((lo, hi), slice(int(np.searchsorted(frames, lo)), int(np.searchsorted(frames, hi))))
+                for lo, hi in self.chunks]
 
     def _epoch_frames(self, epoch: int) -> tuple[np.ndarray, np.ndarray | None]:
         """-> (the current frames of the epoch's windows, sorted; with every_step, the first frame each window
@@ -150,9 +155,9 @@ class ChunkWindowLoader:
     def epoch(self, epoch: int):
         rng = np.random.default_rng([self.seed, epoch])
         epoch_frames, covered_from = self._epoch_frames(epoch)
+        in_chunks = self._in_chunks(epoch_frames)
         for c in rng.permutation(len(self.chunks)):
-            lo, hi = self.chunks[c]
-            inside = slice(np.searchsorted(epoch_frames, lo), np.searchsorted(epoch_frames, hi))
+            (lo, hi), inside = in_chunks[c]
             frames = epoch_frames[inside]
             if not len(frames):
                 continue
